@@ -1,0 +1,5 @@
+import sys
+
+from printability.cli.main import main
+
+sys.exit(main())

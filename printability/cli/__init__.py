@@ -1,0 +1,3 @@
+"""The ``printability`` command line: one module per subcommand, each a thin adapter."""
+
+__all__: list[str] = []

@@ -1,0 +1,84 @@
+"""Entry point of the ``printability`` command.
+
+Each subcommand lives in its own module of this package and exposes
+``register(app)``; this module only assembles them and turns library errors
+into the exit-code contract of DESIGN.md §4: 0 success, 1 a clear one-paragraph
+error on stderr, 2 usage.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import textwrap
+
+import typer
+
+from printability import __version__
+from printability.errors import PrintabilityError
+
+__all__ = ["app", "main"]
+
+# Subcommand modules, in help order. Each defines register(app: typer.Typer).
+SUBCOMMANDS: tuple[str, ...] = ()
+
+app = typer.Typer(
+    name="printability",
+    help="What of your part will this nozzle actually print, and how to print exactly that.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"printability {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(  # noqa: B008
+        False, "--version", callback=_version, is_eager=True, help="Show the version and exit."
+    ),
+) -> None:
+    """printability: Maximum Material Condition analysis for any nozzle on any machine."""
+
+
+for _name in SUBCOMMANDS:
+    importlib.import_module(_name).register(app)
+
+
+def error_paragraph(exc: BaseException) -> str:
+    """One paragraph, wrapped for a terminal."""
+    text = " ".join(str(exc).split())
+    return textwrap.fill(f"printability: error: {text}", width=100)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the process exit code."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except PrintabilityError as exc:
+        print(error_paragraph(exc), file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("printability: interrupted", file=sys.stderr)
+        return 130
+    except typer.Exit as exc:
+        return int(exc.exit_code or 0)
+    except (typer.Abort,):
+        return 1
+    except Exception as exc:  # click usage errors
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            return exc.exit_code
+        raise
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

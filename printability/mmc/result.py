@@ -1,0 +1,160 @@
+"""Result types shared by every MMC engine.
+
+All engines return the same immutable :class:`MMCResult`, so the ranking, the
+report, the G-code side and the tests never care which engine ran.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from shapely.geometry.base import BaseGeometry
+
+from printability.geometry import Raster
+from printability.machine import Machine
+from printability.nozzle import Nozzle
+
+__all__ = ["Components", "MMCResult", "MotionRestriction"]
+
+
+@dataclass(frozen=True, eq=False)
+class MotionRestriction:
+    """The motion restriction P = C \\ B of a separable machine, per sampled angle.
+
+    Exactly one of ``regions`` (vector engines: P_φ as shapely geometry, one
+    per angle) and ``masks`` (raster engine: a boolean Raster of shape
+    ``(len(angles), ny, nx)``; a pixel is True when its *centre* is a
+    feasible position, conservatively) is set. For chains (sampled engine)
+    ``samples`` holds the feasible joint vectors instead.
+
+    Attributes
+    ----------
+    angles
+        The sampled nozzle angles, degrees (``[0.0]`` on XY).
+    regions
+        P_φ per angle (vector engines).
+    masks
+        P_φ per angle (raster engine), inner approximation: every True pixel
+        centre is a configuration that keeps the whole nozzle inside G.
+    count
+        For rasters: how many sampled angles fit at each pixel (uint16 Raster).
+    samples
+        Sampled engine: feasible configurations u, shape (k, p).
+    """
+
+    angles: np.ndarray
+    regions: tuple[BaseGeometry, ...] | None = None
+    masks: Raster | None = None
+    count: Raster | None = None
+    samples: np.ndarray | None = None
+
+    def positions(self) -> BaseGeometry | Raster | None:
+        """Where the nozzle origin may be at some angle (∪_φ P_φ)."""
+        if self.regions is not None:
+            import shapely
+
+            return shapely.union_all(list(self.regions))
+        if self.masks is not None:
+            return Raster(self.masks.grid, self.masks.data.any(axis=0))
+        return None
+
+
+@dataclass(frozen=True, eq=False)
+class Components:
+    """Connected components of P in configuration space.
+
+    Two pieces of P at consecutive sampled angles are connected when they
+    overlap in XY (and the first and last angles wrap on a full turn). The
+    count tells how many separate regions a continuous motion must visit;
+    with several extruders on one head, separate components can be printed
+    at once.
+
+    Attributes
+    ----------
+    count
+        Number of components.
+    geometries
+        Per component, the union over its angles of the nozzle origin
+        positions (XY projection), as shapely geometry; may be None for very
+        large raster results.
+    angle_ranges
+        Per component, (min, max) sampled angle, degrees.
+    """
+
+    count: int
+    geometries: tuple[BaseGeometry, ...] | None = None
+    angle_ranges: tuple[tuple[float, float], ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class MMCResult:
+    """What one nozzle on one machine makes of one layer.
+
+    Attributes
+    ----------
+    engine
+        Engine that produced it (a name from ENGINES).
+    nozzle, machine
+        The inputs.
+    target
+        G (shapely MultiPolygon).
+    as_built
+        S = ∪_u A^u over P, as shapely geometry. For the raster engine it is
+        the vectorised *inner* raster estimate (S_inner ⊆ S ⊆ G), or None when
+        too large to vectorise; ``as_built_raster`` then holds it.
+    as_built_raster
+        Raster engine: S_inner on the grid (boolean Raster).
+    target_area, as_built_area, lost_area
+        λ(G), λ(S) and λ(G \\ S), mm². For the raster engine, the best
+        estimate, which lies within ``lost_area_bounds``.
+    lost_fraction
+        lost_area / target_area.
+    lost_area_bounds
+        (lo, hi) with lo ≤ exact lost area ≤ hi, mm². For the exact engine
+        the interval covers the polygonal approximation of curved nozzles
+        (see its docstring); for the raster engine it covers both the grid
+        and the angular sampling.
+    motion
+        The motion restriction P.
+    components
+        Connected components of P.
+    resolution
+        Grid spacing h (raster) or the chord tolerance (vector), mm.
+    angle_step
+        Angular sampling step, degrees (0 when the nozzle does not turn).
+    elapsed
+        Wall time of the computation, s.
+    notes
+        Human-readable remarks (approximations made, angles skipped...).
+    """
+
+    engine: str
+    nozzle: Nozzle
+    machine: Machine
+    target: BaseGeometry
+    as_built: BaseGeometry | None
+    target_area: float
+    as_built_area: float
+    lost_area: float
+    lost_area_bounds: tuple[float, float]
+    motion: MotionRestriction
+    components: Components
+    resolution: float
+    angle_step: float
+    elapsed: float
+    as_built_raster: Raster | None = None
+    notes: tuple[str, ...] = ()
+    extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def lost_fraction(self) -> float:
+        return self.lost_area / self.target_area if self.target_area > 0 else 0.0
+
+    @property
+    def lost(self) -> BaseGeometry | None:
+        """G \\ S as geometry (None when S is only known as a raster)."""
+        if self.as_built is None:
+            return None
+        return self.target.difference(self.as_built)

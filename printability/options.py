@@ -1,0 +1,132 @@
+"""The one registry of string options.
+
+Every string-valued option of the library and the CLI (engine names, nozzle
+kinds, machine kinds, G-code flavors...) is declared here. Library code
+validates with :meth:`Registry.check`; the CLI builds its help and choices from
+the same objects, so the two can never disagree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+from printability.errors import UnknownOptionError
+
+__all__ = [
+    "ENGINES",
+    "EXTRUDER_ERROR_POLICIES",
+    "FEED_POLICIES",
+    "FLAVORS",
+    "JOINT_KINDS",
+    "MACHINE_KINDS",
+    "NOZZLE_KINDS",
+    "REGISTRIES",
+    "Registry",
+]
+
+
+@dataclass(frozen=True)
+class Registry(Mapping[str, str]):
+    """A named set of valid string choices, each with a one-line description."""
+
+    name: str
+    entries: tuple[tuple[str, str], ...]
+
+    def __getitem__(self, key: str) -> str:
+        for k, v in self.entries:
+            if k == key:
+                return v
+        raise KeyError(key)
+
+    def __iter__(self) -> Iterator[str]:
+        return (k for k, _ in self.entries)
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    @property
+    def choices(self) -> tuple[str, ...]:
+        return tuple(k for k, _ in self.entries)
+
+    def check(self, value: object) -> str:
+        """Return ``value`` if it is a valid choice, else raise UnknownOptionError."""
+        if isinstance(value, str):
+            key = value.strip().lower()
+            if key in self.choices:
+                return key
+        listed = ", ".join(self.choices)
+        raise UnknownOptionError(
+            f"unknown {self.name} {value!r}; expected one of: {listed}"
+        )
+
+
+def _reg(name: str, **entries: str) -> Registry:
+    # Python keywords cannot hold hyphens; option names use them.
+    return Registry(name, tuple((k.replace("_", "-"), v) for k, v in entries.items()))
+
+
+ENGINES = _reg(
+    "engine",
+    auto="exact for XY with a vector-friendly nozzle, raster for rotary machines",
+    exact="vector engine (shapely): affine trick for circles/ellipses, Minkowski for polygons",
+    raster="grid engine with conservative rasterisation and [lo, hi] bounds",
+    reference="the seed paper's literal inverse-trajectory method (slow, small inputs)",
+    sampled="any machine chain: sample the joint space and test containment",
+)
+
+NOZZLE_KINDS = _reg(
+    "nozzle kind",
+    circle="round orifice: d=DIAMETER (or r=RADIUS)",
+    ellipse="elliptical orifice: major=, minor= (full axis lengths)",
+    rect="rectangular orifice: w= (along x), h= (along y)",
+    polygon="any polygon: polygon:FILE.svg|FILE.txt or polygon:pts=x y;x y;...",
+)
+
+MACHINE_KINDS = _reg(
+    "machine kind",
+    xy="X-Y translations only; the nozzle never turns",
+    ttr="X-Y translations plus a rotary axis turning the nozzle (T-T-R)",
+    chain="a general planar chain of prismatic/revolute joints from a TOML file",
+)
+
+JOINT_KINDS = _reg(
+    "joint kind",
+    prismatic="translation along the joint's axis, mm",
+    revolute="rotation about the joint's origin, degrees",
+)
+
+FLAVORS = _reg(
+    "G-code flavor",
+    marlin="Marlin 2.1 or newer (rotational axes: F is the XY speed)",
+    klipper="Klipper (F is the XY speed)",
+    reprap="RepRapFirmware 3 (F is the XY speed)",
+    generic="generic firmware that treats all axes as Euclidean",
+)
+
+FEED_POLICIES = _reg(
+    "feed policy",
+    xy="F is the XY (tool tip) speed; rotary motion does not slow it",
+    euclidean="the firmware treats degrees as mm: F is scaled so the XY speed is kept",
+    inverse_time="G93 inverse-time feed: each move carries its duration",
+)
+
+EXTRUDER_ERROR_POLICIES = _reg(
+    "firmware error policy",
+    stop="send M112 and stop",
+    cancel="stop sending and run the cancel sequence",
+    ignore="log the error and keep streaming",
+)
+
+REGISTRIES: dict[str, Registry] = {
+    r.name: r
+    for r in (
+        ENGINES,
+        NOZZLE_KINDS,
+        MACHINE_KINDS,
+        JOINT_KINDS,
+        FLAVORS,
+        FEED_POLICIES,
+        EXTRUDER_ERROR_POLICIES,
+    )
+}
