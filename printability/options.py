@@ -15,13 +15,18 @@ from printability.errors import UnknownOptionError
 
 __all__ = [
     "ENGINES",
+    "ENDSTOP_POLICIES",
     "EXTRUDER_ERROR_POLICIES",
+    "FAULT_KINDS",
     "FEED_POLICIES",
+    "FIRMWARE_PROFILES",
     "FLAVORS",
     "JOINT_KINDS",
     "MACHINE_KINDS",
     "NOZZLE_KINDS",
     "REGISTRIES",
+    "SOURCE_FORMATS",
+    "UNITS",
     "Registry",
 ]
 
@@ -118,6 +123,62 @@ EXTRUDER_ERROR_POLICIES = _reg(
     ignore="log the error and keep streaming",
 )
 
+SOURCE_FORMATS = _reg(
+    "source format",
+    # "3mf" is not an identifier, hence the dict below.
+    gcode="sliced G-code (.gcode, .gco, .g): layers rebuilt from the extrusions",
+    stl="triangle mesh (.stl, binary or ASCII; no units), sliced at a layer height",
+    **{"3mf": "3MF package (.3mf; units from the file), sliced at a layer height"},
+    obj="Wavefront OBJ mesh (.obj; no units), sliced at a layer height",
+    svg="SVG drawing (.svg): filled shapes, one planar layer",
+    slic3r_svg="Slic3r multi-layer slice SVG (slic3r --export-svg): one layer per <g>",
+    dxf="DXF drawing (.dxf): closed outlines, one planar layer",
+    geojson="GeoJSON (.geojson, .json): polygons; lon/lat data are projected",
+    wkt="WKT text (.wkt): polygons, one planar layer",
+    slices="slice-outline text (.txt): bead widths then point-count/\"x y\" curves",
+)
+
+UNITS = _reg(
+    "unit",
+    mm="millimetre",
+    cm="centimetre (10 mm)",
+    m="metre (1000 mm)",
+    **{"in": "inch (25.4 mm)"},  # a Python keyword, hence the dict
+    px="CSS pixel, 1/96 inch (SVG user unit)",
+)
+
+FIRMWARE_PROFILES = _reg(
+    "firmware profile",
+    marlin="Marlin 2.1: line numbers and checksums, Resend, plain 'ok'",
+    marlin_advanced="Marlin 2.1 with ADVANCED_OK: 'ok N<line> P<planner free> B<buffer free>'",
+    klipper="Klipper-like: ignores line numbers and checksums, never asks for a resend",
+)
+
+FAULT_KINDS = _reg(
+    "fault kind",
+    corrupt="flip a bit in a received line (the checksum catches it; a Resend follows)",
+    corrupt_reply="flip a bit in the reply to a line",
+    drop_line="lose a received line on the wire",
+    drop_ok="never send the 'ok' of a line",
+    duplicate_ok="send the 'ok' of a line twice",
+    busy="send spurious 'echo:busy: processing' lines before the 'ok'",
+    stall="stop answering for a while (seconds of real time)",
+    disconnect="drop the link and reset: state lost, 'start' banner on reconnect",
+    resend_storm="ask for a resend of the same line several times in a row",
+)
+
+ENDSTOP_POLICIES = _reg(
+    "soft endstop policy",
+    clamp="clamp targets to the travel limits silently (Marlin)",
+    error="refuse a move that leaves the travel limits with an error (Klipper)",
+)
+
+SIM_CLOCKS = _reg(
+    "simulator clock",
+    sim="simulated time: the printer never waits in real time (tests, fast runs)",
+    real="wall-clock time: moves, heating and dwells take as long as on the machine",
+)
+
 REGISTRIES: dict[str, Registry] = {
     r.name: r
     for r in (
@@ -128,5 +189,7 @@ REGISTRIES: dict[str, Registry] = {
         FLAVORS,
         FEED_POLICIES,
         EXTRUDER_ERROR_POLICIES,
+        SOURCE_FORMATS,
+        UNITS,
     )
 }
