@@ -12,11 +12,87 @@ from typing import Any
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
-from printability.geometry import Raster
+from printability.geometry import Grid, Raster
 from printability.machine import Machine
 from printability.nozzle import Nozzle
 
-__all__ = ["Components", "MMCResult", "MotionRestriction"]
+__all__ = ["Components", "MMCResult", "MotionRestriction", "PackedMasks"]
+
+
+@dataclass(frozen=True, eq=False)
+class PackedMasks:
+    """A stack of boolean masks on one Grid, one per sampled angle, stored compactly.
+
+    Bits are packed 64 pixels to a ``uint64`` word along each row: pixel
+    ``[i, j]`` is bit ``j % 64`` (least significant first) of word
+    ``[i, j // 64]``; bits past ``grid.nx`` are 0. All angles share ``base``
+    except at the words listed in ``words`` (flat indices into ``base``),
+    whose value at angle k is ``values[k, b]``. The raster engine lists there
+    the words near ∂G where the masks differ between angles, so 180 angles of
+    a 2500² layer take tens of MB instead of 1.1 GB of booleans.
+
+    Attributes
+    ----------
+    grid
+        The grid of every mask.
+    base
+        ``uint64 (ny, ceil(nx / 64))``: the words common to all angles.
+    words
+        ``int64 (m,)``: flat indices of the words that vary with the angle.
+    values
+        ``uint64 (k, m)``: their value at each angle.
+    """
+
+    grid: Grid
+    base: np.ndarray
+    words: np.ndarray
+    values: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.values.shape[0])
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held, bytes."""
+        return int(self.base.nbytes + self.words.nbytes + self.values.nbytes)
+
+    def bits(self, k: int) -> np.ndarray:
+        """The packed words of mask ``k`` (a new ``uint64 (ny, nw)`` array)."""
+        out = self.base.copy()
+        out.reshape(-1)[self.words] = self.values[k]
+        return out
+
+    def _unpack(self, bits: np.ndarray) -> np.ndarray:
+        b8 = np.ascontiguousarray(bits).astype("<u8", copy=False).view(np.uint8)
+        return np.unpackbits(b8, axis=-1, bitorder="little", count=self.grid.nx).astype(bool)
+
+    def mask(self, k: int) -> Raster:
+        """Mask ``k`` as a boolean Raster (``(ny, nx)``)."""
+        if not -len(self) <= k < len(self):
+            raise IndexError(f"mask index {k} out of range for {len(self)} angles")
+        return Raster(self.grid, self._unpack(self.bits(k)))
+
+    def any(self) -> Raster:
+        """Union over the angles, as a boolean Raster."""
+        out = self.base.copy()
+        flat = out.reshape(-1)
+        flat[self.words] = np.bitwise_or.reduce(self.values, axis=0) if len(self) else 0
+        return Raster(self.grid, self._unpack(out))
+
+    def contains(self, k: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether mask ``k`` holds the pixels containing points (x, y) (mm); False off-grid."""
+        g = self.grid
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        j = np.floor((x - g.x0) / g.h).astype(np.int64)
+        i = np.floor((y - g.y0) / g.h).astype(np.int64)
+        ok = (i >= 0) & (i < g.ny) & (j >= 0) & (j < g.nx)
+        bits = self.bits(k)
+        out = np.zeros(np.broadcast(x, y).shape, bool)
+        ii, jj = i[ok], j[ok]
+        words = bits[ii, jj >> 6]
+        out[ok] = ((words >> (jj & 63).astype(np.uint64)) & np.uint64(1)).astype(bool)
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +118,10 @@ class MotionRestriction:
         For rasters: how many sampled angles fit at each pixel (uint16 Raster).
     samples
         Sampled engine: feasible configurations u, shape (k, p).
+    packed
+        Raster engine: P_φ per angle as :class:`PackedMasks` (always set by
+        the raster engine; ``masks`` is also set when the boolean stack is
+        small).
     """
 
     angles: np.ndarray
@@ -49,6 +129,15 @@ class MotionRestriction:
     masks: Raster | None = None
     count: Raster | None = None
     samples: np.ndarray | None = None
+    packed: PackedMasks | None = None
+
+    def mask(self, k: int) -> Raster | None:
+        """P at the k-th sampled angle as a boolean Raster (raster engine), else None."""
+        if self.masks is not None:
+            return Raster(self.masks.grid, self.masks.data[k])
+        if self.packed is not None:
+            return self.packed.mask(k)
+        return None
 
     def positions(self) -> BaseGeometry | Raster | None:
         """Where the nozzle origin may be at some angle (∪_φ P_φ)."""
