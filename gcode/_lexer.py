@@ -423,5 +423,5 @@ def lex(
     for k in inexact:  # very long numbers: let Python convert them exactly
         text = data[words["start"][k] + 1 : words["end"][k]]
         words["value"][k] = float(text)
-        words["flags"][k] &= ~WORD_INEXACT
+        words["flags"][k] &= 0xFF ^ WORD_INEXACT
     return lines, words

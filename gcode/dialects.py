@@ -2,7 +2,7 @@
 
 Comments are found by a handful of regular expressions run over the whole
 buffer (C speed) and mapped to line numbers with the line table; only
-matches that start a line count.
+matches that start a line count (``G1 X1 ;TYPE:x`` is not a feature change).
 
 =================  ==============================  =================  =======================
 dialect            layer marker (and Z / height)   feature            width
@@ -39,18 +39,19 @@ __all__ = [
     "scan_comments",
 ]
 
-_BOL = rb"(?:^|(?<=\r))"  # start of a line, also after a lone \r
 _NUM = rb"([-+]?(?:\d+\.?\d*|\.\d+))"
 
 
 def _rx(body: bytes) -> re.Pattern[bytes]:
-    return re.compile(_BOL + body, re.M)
+    # No ^ anchor: a literal prefix lets the regex engine skip ahead fast;
+    # matches that do not start a line are dropped by _lines_of.
+    return re.compile(body, re.M)
 
 
 _LAYER = {
-    "prusa": _rx(rb";LAYER_CHANGE[ \t]*\r?$"),
-    "bambu": _rx(rb"; CHANGE_LAYER[ \t]*\r?$"),
-    "cura": _rx(rb";LAYER:[ \t]*(-?\d+)[ \t]*\r?$"),
+    "prusa": _rx(rb";LAYER_CHANGE[ \t]*(?=[\r\n]|\Z)"),
+    "bambu": _rx(rb"; CHANGE_LAYER[ \t]*(?=[\r\n]|\Z)"),
+    "cura": _rx(rb";LAYER:[ \t]*(-?\d+)[ \t]*(?=[\r\n]|\Z)"),
     "simplify3d": _rx(rb"; layer (\d+), Z = " + _NUM),
 }
 _Z = {"prusa": _rx(rb";Z:[ \t]*" + _NUM), "bambu": _rx(rb"; Z_HEIGHT:[ \t]*" + _NUM)}
@@ -185,6 +186,10 @@ def _lines_of(pattern: re.Pattern[bytes], data: bytes, line_start: np.ndarray):
     ms = list(pattern.finditer(data))
     pos = np.fromiter((m.start() for m in ms), np.int64, len(ms))
     lines = np.searchsorted(line_start, pos, side="right") - 1
+    at_start = line_start[lines] == pos
+    if not at_start.all():
+        lines = lines[at_start]
+        ms = [m for m, keep in zip(ms, at_start.tolist(), strict=True) if keep]
     return lines, ms
 
 
