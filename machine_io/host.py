@@ -1,0 +1,1219 @@
+"""The serial host: connect to a Marlin-like firmware and stream a program, losing nothing.
+
+How it keeps its promise (every command of the file executed once, in order):
+
+- Every line is numbered and checksummed (:func:`machine_io.protocol.frame`) and
+  kept in a history by number. The firmware accepts line *n* only right after
+  line *n − 1*, so a retransmitted line that already ran is refused, never run
+  twice. The host therefore retransmits freely when in doubt (a timeout, a
+  lost ``ok``) and always obeys the firmware's ``Resend: n``.
+- A ``Resend`` caused by lines that were already on the wire when the first
+  one came (send-ahead) is *stale*: it is recognised by the order of replies
+  and ignored. Genuine requests for the same line are counted; past
+  ``max_resends`` in a row the host stops and says where.
+- The end of the file is only reached when the firmware has provably accepted
+  the last line: ``ok N<last>`` with ADVANCED_OK, otherwise a numbered ``M105``
+  barrier whose reply (``ok T:…``) cannot be confused with another ``ok``.
+- Send-ahead keeps at most as many lines in flight as the firmware last
+  reported free command slots (``ok … B<free>``) and never more bytes than its
+  receive buffer holds; without such reports it is strict ping-pong.
+
+One thread does everything (send, read, timers); :meth:`Host.pause`,
+:meth:`Host.resume` and :meth:`Host.cancel` only set flags, so they may be
+called from another thread or a signal handler. Ctrl-C while streaming
+(SIGINT, when streaming runs in the main thread) is turned into a clean
+cancel; a second Ctrl-C sends ``M112``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import tempfile
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import serial
+
+from machine_io.program import Program, restore_commands, state_at
+from machine_io.protocol import (
+    LONG_COMMANDS,
+    FirmwareInfo,
+    Reply,
+    command_code,
+    frame,
+    is_protocol_error,
+    parse_firmware_info,
+    parse_position,
+    parse_reply,
+    parse_temperatures,
+)
+from machine_io.transport import LineReader, open_port
+from printability.errors import InputError, PrintabilityOSError, PrinterError
+from printability.options import EXTRUDER_ERROR_POLICIES, STREAM_MODES
+
+__all__ = [
+    "DEFAULT_CANCEL_GCODE",
+    "Host",
+    "HostConfig",
+    "Progress",
+    "StreamReport",
+    "Transcript",
+]
+
+DEFAULT_CANCEL_GCODE: tuple[str, ...] = ("M104 S0", "M140 S0", "M107", "M84")
+_BARRIER = "M105"
+
+
+@dataclass(frozen=True)
+class HostConfig:
+    """How the host talks to the printer.
+
+    Attributes
+    ----------
+    mode
+        One of :data:`printability.options.STREAM_MODES`.
+    error_policy
+        What a firmware ``Error:`` does, one of
+        :data:`printability.options.EXTRUDER_ERROR_POLICIES`.
+    baud
+        Baud rate, bits/s.
+    banner_timeout
+        How long to wait for the ``start`` banner after opening, s (a printer
+        that does not reset on connect sends none; the handshake follows anyway).
+    handshake_timeout, handshake_attempts
+        Per-attempt wait for the ``M110`` reply, s, and the number of attempts.
+    reply_timeout
+        Silence after which an unanswered line is retransmitted, s. Any line
+        from the firmware (``busy:``, temperatures) restarts the clock.
+    long_timeout
+        The same for long commands (homing, heating waits, dwell...), s.
+    resend_ok_timeout
+        A ``Resend`` not followed by ``ok`` within this time is treated as if
+        it had been (firmwares that never send it), s.
+    max_resends
+        Genuine resend requests of the same line in a row before stopping.
+    max_timeouts
+        Timeouts in a row without a single reply before declaring the printer lost.
+    rx_buffer
+        Firmware receive buffer, bytes (Marlin RX_BUFFER_SIZE 128, one kept free).
+    max_window
+        Most lines in flight in send-ahead mode.
+    max_line_length
+        Longest framed line, bytes (Marlin MAX_CMD_SIZE).
+    check_axes
+        Refuse a program that drives a rotary axis the firmware does not report.
+    cancel_gcode
+        Sent after a cancel (heaters, fan and motors off).
+    pause_gcode
+        Sent when a pause takes effect (e.g. a lift); on resume the position,
+        angle, E, modes and feed rate are restored if it is not empty.
+    reconnect_timeout
+        After the link drops, keep trying to reopen the port this long, s (0: never).
+    home_on_restore
+        After a firmware restart, home X and Y before travelling back.
+    end_barrier
+        Without ADVANCED_OK, end with a numbered ``M105`` whose reply proves
+        that every line was accepted.
+    """
+
+    mode: str = "auto"
+    error_policy: str = "stop"
+    baud: int = 250000
+    banner_timeout: float = 3.0
+    handshake_timeout: float = 2.0
+    handshake_attempts: int = 3
+    reply_timeout: float = 5.0
+    long_timeout: float = 1800.0
+    resend_ok_timeout: float = 1.0
+    max_resends: int = 10
+    max_timeouts: int = 4
+    rx_buffer: int = 127
+    max_window: int = 32
+    max_line_length: int = 96
+    check_axes: bool = True
+    cancel_gcode: tuple[str, ...] = DEFAULT_CANCEL_GCODE
+    pause_gcode: tuple[str, ...] = ()
+    reconnect_timeout: float = 30.0
+    home_on_restore: bool = True
+    end_barrier: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mode", STREAM_MODES.check(self.mode))
+        object.__setattr__(self, "error_policy", EXTRUDER_ERROR_POLICIES.check(self.error_policy))
+        for name in ("banner_timeout", "handshake_timeout", "reply_timeout", "long_timeout",
+                     "resend_ok_timeout", "reconnect_timeout"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v >= 0):
+                raise InputError(f"{name} must be a non-negative number of seconds; got {v!r}")
+        for name in ("baud", "handshake_attempts", "max_resends", "max_timeouts", "rx_buffer",
+                     "max_window", "max_line_length"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 1):
+                raise InputError(f"{name} must be a positive integer; got {v!r}")
+
+
+@dataclass(frozen=True)
+class Progress:
+    """A snapshot for progress displays.
+
+    Attributes
+    ----------
+    done, total
+        Program commands acknowledged / in the program.
+    seconds_done, seconds_total
+        Estimated motion time of those commands, s.
+    elapsed
+        Wall time since streaming began, s.
+    temperatures
+        Last reported ``{name: (actual, target)}``, °C.
+    state
+        ``streaming``, ``paused``, ``cancelling``, ``reconnecting``, ``done``.
+    resends
+        Resend requests honoured so far.
+    """
+
+    done: int
+    total: int
+    seconds_done: float
+    seconds_total: float
+    elapsed: float
+    temperatures: dict[str, tuple[float, float | None]]
+    state: str
+    resends: int
+
+    @property
+    def eta(self) -> float | None:
+        """Remaining time, s: the file's own motion estimate, rescaled by the pace so far."""
+        remaining = self.seconds_total - self.seconds_done
+        if self.seconds_done > 1.0 and self.elapsed > 1.0:
+            return remaining * (self.elapsed / self.seconds_done)
+        if self.total and self.done and self.elapsed > 1.0:
+            return self.elapsed * (self.total - self.done) / self.done
+        return None
+
+
+@dataclass(frozen=True)
+class StreamReport:
+    """What happened during one streaming session.
+
+    Attributes
+    ----------
+    source
+        The program streamed.
+    port
+        The port.
+    firmware
+        What the firmware said of itself.
+    mode
+        ``ping-pong`` or ``send-ahead`` (as used).
+    total
+        Commands in the program.
+    start
+        0-based index of the first command of this session.
+    acknowledged
+        Commands of the program the firmware has acknowledged (index of the
+        next command to send), i.e. the program ran up to ``acknowledged − 1``.
+    completed
+        Every command was acknowledged.
+    stopped
+        Why streaming stopped early (None when completed).
+    lines_sent
+        Numbered lines transmitted, retransmissions included.
+    resends
+        Genuine resend requests honoured.
+    stale_resends
+        Resend requests recognised as stale and ignored.
+    timeouts
+        Retransmissions after silence.
+    reconnects
+        Times the link was reopened.
+    elapsed
+        Wall time, s.
+    bytes_sent
+        Bytes written to the port.
+    injected
+        Commands the host added, as ``(program index before which they ran, commands)``:
+        handshake queries excluded; restore sequences, pause/cancel sequences and
+        the end barrier included.
+    events
+        Notable events in order (firmware errors, restarts, pauses).
+    temperatures
+        Last reported temperatures.
+    """
+
+    source: str
+    port: str
+    firmware: FirmwareInfo
+    mode: str
+    total: int
+    start: int
+    acknowledged: int
+    completed: bool
+    stopped: str | None
+    lines_sent: int
+    resends: int
+    stale_resends: int
+    timeouts: int
+    reconnects: int
+    elapsed: float
+    bytes_sent: int
+    injected: tuple[tuple[int, tuple[str, ...]], ...] = ()
+    events: tuple[str, ...] = ()
+    temperatures: dict[str, tuple[float, float | None]] = field(default_factory=dict)
+
+    @property
+    def resend_ratio(self) -> float:
+        """Resend requests honoured per numbered line transmitted."""
+        return self.resends / self.lines_sent if self.lines_sent else 0.0
+
+    @property
+    def lines_per_second(self) -> float:
+        return (self.acknowledged - self.start) / self.elapsed if self.elapsed > 0 else 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "source": self.source, "port": self.port, "firmware": self.firmware.to_json(),
+            "mode": self.mode, "total": self.total, "start": self.start,
+            "acknowledged": self.acknowledged, "completed": self.completed,
+            "stopped": self.stopped, "lines_sent": self.lines_sent, "resends": self.resends,
+            "resend_ratio": self.resend_ratio, "stale_resends": self.stale_resends,
+            "timeouts": self.timeouts, "reconnects": self.reconnects, "elapsed": self.elapsed,
+            "bytes_sent": self.bytes_sent,
+            "injected": [[i, list(c)] for i, c in self.injected],
+            "events": list(self.events),
+            "temperatures": {k: list(v) for k, v in self.temperatures.items()},
+        }
+
+
+class Transcript:
+    """A log of every line sent and received, with times (like OctoPrint's serial.log).
+
+    Parameters
+    ----------
+    path
+        File to write; None keeps nothing.
+    """
+
+    def __init__(self, path: str | Path | None) -> None:
+        self.path = Path(path) if path is not None else None
+        self._fh: TextIO | None = None
+        self._t0 = time.monotonic()
+        if self.path is not None:
+            try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self._fh = open(self.path, "w", encoding="utf-8", errors="replace")
+            except OSError as exc:
+                raise PrintabilityOSError(
+                    f"{self.path}: cannot write the transcript ({exc.strerror})") from None
+
+    def write(self, direction: str, text: str) -> None:
+        """Record one line; ``direction`` is ``Send``, ``Recv`` or ``Note``."""
+        if self._fh is not None:
+            self._fh.write(f"{time.monotonic() - self._t0:10.4f} {direction}: {text}\n")
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+
+@dataclass
+class _Sent:
+    """One transmission awaiting its reply."""
+
+    number: int
+    size: int
+    seq: int
+    long: bool
+
+
+class _Stop(Exception):
+    """Internal: unwind the streaming loop (the reason is in ``Host._stop_reason``)."""
+
+
+def _atomic_json(path: Path, doc: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=1)
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+class Host:
+    """A connection to one printer.
+
+    Parameters
+    ----------
+    port
+        Device, pty path or pyserial URL.
+    config
+        Protocol settings.
+    transcript
+        Where to log the conversation (None: nowhere).
+    on_event
+        Called with a one-line message for notable events (errors, resends,
+        restarts), for display.
+
+    Examples
+    --------
+    >>> with Host("printsim://") as host:            # doctest: +SKIP
+    ...     host.connect()
+    ...     report = host.stream(load_program("part.gcode"))
+    """
+
+    def __init__(self, port: str, *, config: HostConfig = HostConfig(),
+                 transcript: Transcript | None = None,
+                 on_event: Callable[[str], None] | None = None) -> None:
+        self.port_name = port
+        self.config = config
+        self.transcript = transcript or Transcript(None)
+        self.on_event = on_event
+        self.firmware = FirmwareInfo()
+        self.temperatures: dict[str, tuple[float, float | None]] = {}
+        self._port: Any = None
+        self._reader: LineReader | None = None
+        self._pause = threading.Event()
+        self._cancel = threading.Event()
+        self._emergency = threading.Event()
+        self._events: list[str] = []
+        self._banner_seen = False
+        self._reset_counters()
+
+    # ----------------------------------------------------------------- public control
+    def pause(self) -> None:
+        """Stop sending new lines after those in flight (thread-safe)."""
+        self._pause.set()
+
+    def resume(self) -> None:
+        """Continue after :meth:`pause` (thread-safe)."""
+        self._pause.clear()
+
+    def cancel(self) -> None:
+        """Stop sending, finish what is in flight, send the cancel sequence (thread-safe)."""
+        self._cancel.set()
+
+    def emergency_stop(self) -> None:
+        """Send ``M112`` at the next opportunity and stop (thread-safe)."""
+        self._emergency.set()
+        self._cancel.set()
+
+    @property
+    def paused(self) -> bool:
+        return self._pause.is_set()
+
+    # ----------------------------------------------------------------- connection
+    def __enter__(self) -> Host:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Open the port (see :func:`machine_io.transport.open_port`)."""
+        self._port = open_port(self.port_name, baud=self.config.baud)
+        self._reader = LineReader(self._port)
+
+    def close(self) -> None:
+        """Close the port and the transcript."""
+        if self._port is not None:
+            with contextlib.suppress(Exception):
+                self._port.close()
+            self._port = None
+        self.transcript.close()
+
+    def connect(self) -> FirmwareInfo:
+        """Open the port, wait for the banner, synchronise line numbers, read capabilities.
+
+        Returns
+        -------
+        FirmwareInfo
+            Firmware name, capabilities (``Cap:`` lines) and axes (from M114).
+
+        Raises
+        ------
+        PrintabilityOSError
+            The port cannot be opened.
+        PrinterError
+            The printer does not answer the handshake.
+        """
+        if self._port is None:
+            self.open()
+        self._banner_seen = self._wait_banner(self.config.banner_timeout)
+        self._handshake()
+        m115 = self._query("M115", lambda r: r.kind in ("firmware", "cap"))
+        m114 = self._query("M114", lambda r: r.kind == "position")
+        position = None
+        for line in m114:
+            position = parse_position(line) or position
+        self.firmware = parse_firmware_info(m115, position)
+        self._note(f"connected to {self.firmware.name or 'an unnamed firmware'} on "
+                   f"{self.port_name}" + (" (after its start banner)" if self._banner_seen else ""))
+        return self.firmware
+
+    def _write(self, data: bytes) -> None:
+        self._port.write(data)
+        self._bytes_sent += len(data)
+
+    def _readline(self, deadline: float) -> str | None:
+        raw = self._reader.readline(deadline)
+        if raw is None:
+            return None
+        text = raw.decode("utf-8", errors="replace").strip()
+        self.transcript.write("Recv", text)
+        return text
+
+    def _wait_banner(self, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while True:
+            line = self._readline(deadline)
+            if line is None:
+                return False
+            reply = parse_reply(line)
+            if reply.kind == "start":
+                # Drain the rest of the banner quickly (it arrives in one burst).
+                quiet = time.monotonic() + 0.3
+                while self._readline(quiet) is not None:
+                    quiet = time.monotonic() + 0.3
+                return True
+
+    def _handshake(self, number: int = 0) -> None:
+        """``M110 N<number>``: the next line the firmware expects is ``number + 1``."""
+        data = frame(number, f"M110 N{number}")
+        for attempt in range(1, self.config.handshake_attempts + 1):
+            self.transcript.write("Send", data.decode().strip())
+            self._write(data)
+            deadline = time.monotonic() + self.config.handshake_timeout
+            while True:
+                line = self._readline(deadline)
+                if line is None:
+                    break
+                reply = parse_reply(line)
+                self._observe(reply)
+                if reply.kind == "ok":
+                    # Let a late duplicate reply of an earlier attempt arrive and drop it.
+                    quiet = time.monotonic() + 0.05
+                    while self._readline(quiet) is not None:
+                        quiet = time.monotonic() + 0.05
+                    return
+                if reply.kind == "start":
+                    self._banner_seen = True
+                    break  # it reset on the way: ask again
+            self.transcript.write("Note", f"no reply to M110 (attempt {attempt})")
+        raise PrinterError(
+            f"the printer on {self.port_name} did not answer (no reply to 'M110 N{number}' "
+            f"after {self.config.handshake_attempts} attempts of "
+            f"{self.config.handshake_timeout:g} s); nothing of the file was sent. Check that it "
+            f"is switched on, that the baud rate ({self.config.baud}) matches its firmware, "
+            f"and that no other program holds the port.")
+
+    def _query(self, command: str, wanted: Callable[[Reply], bool]) -> list[str]:
+        """Send an unnumbered query, collect the wanted reply lines up to its ``ok``."""
+        for _attempt in range(self.config.handshake_attempts):
+            self.transcript.write("Send", command)
+            self._write(command.encode() + b"\n")
+            got: list[str] = []
+            deadline = time.monotonic() + self.config.handshake_timeout
+            while True:
+                line = self._readline(deadline)
+                if line is None:
+                    break
+                reply = parse_reply(line)
+                self._observe(reply)
+                if wanted(reply):
+                    got.append(reply.text)
+                elif reply.kind == "ok":
+                    # Marlin puts the M114 report before the ok; some firmwares after it.
+                    if got:
+                        return got
+                    tail = time.monotonic() + 0.1
+                    while (extra := self._readline(tail)) is not None:
+                        r = parse_reply(extra)
+                        self._observe(r)
+                        if wanted(r):
+                            got.append(r.text)
+                    return got
+            if got:
+                return got
+        return []
+
+    def _observe(self, reply: Reply) -> None:
+        """Facts any reply may carry (temperatures)."""
+        if reply.kind in ("temperature", "ok") and "T:" in reply.text:
+            temps = parse_temperatures(reply.text)
+            if temps:
+                self.temperatures = temps
+
+    # ----------------------------------------------------------------- events
+    def _note(self, message: str) -> None:
+        self._events.append(message)
+        self.transcript.write("Note", message)
+        if self.on_event is not None:
+            self.on_event(message)
+
+    # ----------------------------------------------------------------- streaming
+    def _reset_counters(self) -> None:
+        self._frames: list[bytes] = [b""]  # index = line number; 0 is the handshake
+        self._texts: list[str] = [""]
+        self._owner: list[int] = [-1]
+        self._next = 1
+        self._max_sent = 0
+        self._acked = 0
+        self._acked_reliable = 0
+        self._outstanding: deque[_Sent] = deque()
+        self._out_bytes = 0
+        self._seq = 0
+        self._rewind_target = 0
+        self._rewind_seq = 0
+        self._resend_oks = 0
+        self._resend_ok_deadline = 0.0
+        self._last_genuine = 0
+        self._genuine_count = 0
+        self._report_buffer: int | None = None
+        self._last_rx = time.monotonic()
+        self._timeouts_in_row = 0
+        self._lines_sent = 0
+        self._resends = 0
+        self._stale = 0
+        self._timeouts = 0
+        self._reconnects = 0
+        self._bytes_sent = 0
+        self._barrier_number = 0
+        self._barrier_ok = False
+        self._stop_reason: str | None = None
+        self._injected: list[tuple[int, tuple[str, ...]]] = []
+        self._restarted = self._lost = self._fatal = self._failed = False
+        self._cancel_done = False
+
+    def _send_ahead(self) -> bool:
+        mode = self.config.mode
+        if mode == "ping-pong":
+            return False
+        return self.firmware.advanced_ok
+
+    def _can_transmit(self, size: int) -> bool:
+        if self._resend_oks:
+            return False  # wait for the ok that goes with a Resend
+        n_out = len(self._outstanding)
+        if n_out == 0:
+            return True
+        if not self._send_ahead() or self._report_buffer is None:
+            return False
+        return (n_out < min(self._report_buffer, self.config.max_window)
+                and self._out_bytes + size <= self.config.rx_buffer)
+
+    def _append(self, text: str, owner: int) -> None:
+        n = len(self._frames)
+        self._frames.append(frame(n, text))
+        self._texts.append(text)
+        self._owner.append(owner)
+
+    def _transmit(self, number: int) -> None:
+        data = self._frames[number]
+        self._seq += 1
+        code = command_code(self._texts[number])
+        self._outstanding.append(_Sent(number, len(data), self._seq, code in LONG_COMMANDS))
+        self._out_bytes += len(data)
+        self.transcript.write("Send", data[:-1].decode("utf-8", errors="replace"))
+        self._write(data)
+        self._lines_sent += 1
+        if number > self._max_sent:
+            self._max_sent = number
+        self._next = number + 1
+
+    def _pop_front(self) -> _Sent | None:
+        if not self._outstanding:
+            return None
+        s = self._outstanding.popleft()
+        self._out_bytes -= s.size
+        return s
+
+    def _set_acked(self, number: int, *, reliable: bool) -> None:
+        if number > self._acked:
+            self._acked = number
+            if number >= self._last_genuine:
+                self._genuine_count = 0
+        if reliable and number > self._acked_reliable:
+            self._acked_reliable = number
+        self._timeouts_in_row = 0
+
+    def _handle(self, reply: Reply, now: float) -> None:
+        kind = reply.kind
+        self._last_rx = now
+        if kind == "ok":
+            self._on_ok(reply)
+        elif kind == "resend":
+            self._on_resend(reply.number or 0, now)
+        elif kind == "busy":
+            pass  # alive: the clock was restarted above
+        elif kind == "error":
+            self._on_error(reply.text)
+        elif kind == "start":
+            self._on_restart()
+        elif kind == "action":
+            self._on_action(reply.text)
+        elif kind == "temperature":
+            self._observe(reply)
+        elif kind == "echo" and "unknown command" in reply.text.lower():
+            self._note(f"firmware: {reply.text}")
+
+    def _on_ok(self, reply: Reply) -> None:
+        if reply.buffer is not None:
+            self._report_buffer = reply.buffer
+        text = reply.text
+        if "T:" in text:
+            self._observe(reply)
+            # Only M105 answers "ok T:…": the numbered barrier, accepted after every line.
+            if self._barrier_number and self._max_sent >= self._barrier_number:
+                self._barrier_ok = True
+        if self._resend_oks and (reply.number is None or reply.number <= self._acked_reliable):
+            self._resend_oks -= 1  # the ok that follows a Resend
+            return
+        n = reply.number
+        if n is not None:
+            # ADVANCED_OK names the line: duplicates and stale oks are recognised.
+            if n <= self._acked_reliable:
+                return
+            while self._outstanding and self._outstanding[0].number <= n:
+                self._pop_front()
+            self._set_acked(n, reliable=True)
+            return
+        s = self._pop_front()
+        if s is None:
+            return  # an ok nobody waits for (a duplicate): nothing to free
+        if not self.firmware.advanced_ok:
+            self._set_acked(s.number, reliable=False)
+
+    def _on_resend(self, number: int, now: float) -> None:
+        self._resend_oks += 1
+        self._resend_ok_deadline = now + self.config.resend_ok_timeout
+        if number < 1 or number > self._max_sent + 1:
+            self._note(f"ignored a resend request for line {number} (never sent)")
+            return
+        if number == 1 and self._acked_reliable > 1:
+            # A firmware at line 0 again has restarted (without a banner we saw).
+            self._restarted = True
+            raise _Stop
+        # Everything before the requested line has been accepted; the first transmission
+        # from that line on is the one refused.
+        while self._outstanding and self._outstanding[0].number < number:
+            self._pop_front()
+        victim = None
+        for i, sent in enumerate(self._outstanding):
+            if sent.number >= number:
+                victim = sent
+                del self._outstanding[i]
+                self._out_bytes -= sent.size
+                break
+        self._set_acked(number - 1, reliable=False)
+        if number == self._max_sent + 1:
+            self._next = max(self._next, number)
+            return  # a duplicate was refused; nothing to retransmit
+        if (number == self._rewind_target and victim is not None
+                and victim.seq < self._rewind_seq):
+            self._stale += 1
+            return  # refused because an earlier line was: already being retransmitted
+        if number == self._last_genuine:
+            self._genuine_count += 1
+        else:
+            self._last_genuine, self._genuine_count = number, 1
+        if self._genuine_count > self.config.max_resends:
+            self._stop_reason = (
+                f"the firmware asked for line {number} {self._genuine_count} times in a row "
+                f"(limit {self.config.max_resends}): the link is too noisy or the baud rate is "
+                f"wrong")
+            self._failed = True
+            raise _Stop
+        if number <= self._acked_reliable:
+            self._note(f"the firmware asked again for line {number}, already acknowledged: "
+                       f"retransmitting (it refuses what it already ran)")
+        self._resends += 1
+        self._rewind_target = number
+        self._rewind_seq = self._seq + 1
+        self._next = number
+
+    def _on_error(self, text: str) -> None:
+        if is_protocol_error(text):
+            return  # a Resend follows
+        low = text.lower()
+        fatal = "halted" in low or "kill" in low or "stopped" in low or text.startswith("!!")
+        self._note(f"firmware error: {text}")
+        if fatal:
+            self._stop_reason = f"the printer halted ({text}); it needs a reset"
+            self._fatal = self._failed = True
+            raise _Stop
+        policy = self.config.error_policy
+        if policy == "ignore":
+            return
+        self._failed = True
+        self._stop_reason = f"firmware error {text!r} (error policy '{policy}')"
+        if policy == "stop":
+            self._emergency.set()
+        self._cancel.set()
+
+    def _on_restart(self) -> None:
+        self._banner_seen = True
+        if self._max_sent:
+            self._restarted = True
+            raise _Stop
+
+    def _on_action(self, text: str) -> None:
+        action = text.split(":", 1)[1].strip().split()[0].lower() if ":" in text else ""
+        if action in ("pause", "paused"):
+            self._note("the printer asked to pause")
+            self.pause()
+        elif action in ("resume", "resumed"):
+            self._note("the printer asked to resume")
+            self.resume()
+        elif action == "cancel":
+            self._note("the printer asked to cancel")
+            self.cancel()
+
+    def _on_silence(self, now: float) -> None:
+        """Nothing heard for the timeout: retransmit from the first unacknowledged line."""
+        self._timeouts += 1
+        self._timeouts_in_row += 1
+        first = self._acked + 1
+        if self._timeouts_in_row > self.config.max_timeouts:
+            self._stop_reason = (
+                f"the printer stopped answering (no reply for "
+                f"{self._timeouts_in_row} × {self._current_timeout():g} s)")
+            self._lost = self._failed = True
+            raise _Stop
+        self.transcript.write("Note", f"timeout: retransmitting from line {first}")
+        self._outstanding.clear()
+        self._out_bytes = 0
+        self._resend_oks = 0
+        self._rewind_target = first
+        self._rewind_seq = self._seq + 1
+        self._next = min(self._next, first)
+
+    def _current_timeout(self) -> float:
+        if any(s.long for s in self._outstanding):
+            return self.config.long_timeout
+        return self.config.reply_timeout
+
+    def _pump_once(self, more: Callable[[], bool], allow_new: bool) -> None:
+        """Transmit what the window allows, then handle at most a few replies."""
+        while self._next < len(self._frames) or (allow_new and more()):
+            if not self._can_transmit(len(self._frames[self._next])):
+                break
+            self._transmit(self._next)
+        now = time.monotonic()
+        deadline = self._last_rx + self._current_timeout()
+        if self._resend_oks:
+            deadline = min(deadline, self._resend_ok_deadline)
+        text = self._readline(min(deadline, now + 0.1))
+        now = time.monotonic()
+        if text is not None:
+            self._handle(parse_reply(text), now)
+            return
+        if self._resend_oks and now >= self._resend_ok_deadline:
+            # The firmware sent Resend without ok: do as if it had.
+            self._resend_oks -= 1
+            return
+        if self._outstanding and now >= self._last_rx + self._current_timeout():
+            self._on_silence(now)
+            self._last_rx = now
+        elif not self._outstanding:
+            self._last_rx = now
+
+    def stream(self, program: Program, *, start: int = 0, restore: bool = False,
+               on_progress: Callable[[Progress], None] | None = None,
+               resume_file: str | Path | None = None) -> StreamReport:
+        """Send ``program`` from command ``start`` (0-based) to the end.
+
+        Parameters
+        ----------
+        program
+            The commands (see :func:`machine_io.program.load_program`).
+        start
+            First command to send; with ``restore`` the machine state the
+            program would have reached there is restored first.
+        restore
+            Send :func:`machine_io.program.restore_commands` before ``start``.
+        on_progress
+            Called about ten times a second with a :class:`Progress`.
+        resume_file
+            JSON file kept up to date (atomically, every few seconds) with the
+            next command to send, so a crashed session can be resumed.
+
+        Returns
+        -------
+        StreamReport
+            ``completed`` True when every command was acknowledged. A cancel
+            (Ctrl-C, :meth:`cancel`, ``//action:cancel``) returns a report with
+            ``stopped`` set.
+
+        Raises
+        ------
+        PrinterError
+            The printer failed or stopped answering, or lacks the rotary axis the
+            program drives; the message says which command was the last
+            acknowledged and how to resume. ``exc.report`` holds the report.
+        """
+        if self._port is None:
+            self.connect()
+        if not 0 <= start < len(program):
+            raise InputError(f"start must be a command index in [0, {len(program) - 1}]; "
+                             f"got {start}")
+        self._check_axes(program)
+        self._handshake(0)  # number this session's lines from 1
+        if self._send_ahead() is False and self.config.mode == "send-ahead":
+            self._note("send-ahead asked for, but the firmware does not report its buffer "
+                       "(no ADVANCED_OK): streaming ping-pong")
+        self._reset_counters()
+        self._program = program
+        self._cursor = start  # next program command to append to the history
+        self._start = start
+        mode = "send-ahead" if self._send_ahead() else "ping-pong"
+        t0 = time.monotonic()
+        self._t0 = t0
+        if restore:
+            self._inject(restore_commands(state_at(program, start),
+                                          home_xy=self.config.home_on_restore), start)
+        previous_handler = self._install_sigint()
+        last_progress = 0.0
+        last_save = t0
+        resume_path = Path(resume_file) if resume_file is not None else None
+        failure: str | None = None
+        state = "streaming"
+        try:
+            while True:
+                try:
+                    if self._cancel.is_set():
+                        state = "cancelling"
+                        self._finish_cancel()
+                        if self._failed:
+                            failure = self._stop_reason
+                        break
+                    if self._pause.is_set():
+                        state = "paused"
+                        self._do_pause(on_progress)
+                        state = "streaming"
+                        continue
+                    done = self._cursor >= len(program) and self._next >= len(self._frames)
+                    if done and not self._outstanding:
+                        if self._finished():
+                            break
+                        continue
+                    self._pump_once(self._more, allow_new=True)
+                except _Stop:
+                    if (self._restarted or self._lost) and not self._fatal:
+                        self._failed = False
+                        if self._reconnect():
+                            continue
+                        self._failed = True
+                    failure = self._stop_reason or "stopped"
+                    break
+                except (serial.SerialException, OSError) as exc:
+                    self._note(f"the link failed: {exc}")
+                    if self._reconnect():
+                        continue
+                    failure = f"the link to the printer failed ({exc}) and could not be reopened"
+                    break
+                now = time.monotonic()
+                if on_progress is not None and now - last_progress >= 0.1:
+                    last_progress = now
+                    on_progress(self._progress(state))
+                if resume_path is not None and now - last_save >= 2.0:
+                    last_save = now
+                    self._save_resume(resume_path)
+        finally:
+            self._restore_sigint(previous_handler)
+        report = self._report(program, mode, time.monotonic() - t0, failure)
+        if on_progress is not None:
+            on_progress(self._progress("done"))
+        if resume_path is not None:
+            self._save_resume(resume_path)
+        if failure is not None:
+            exc = PrinterError(f"{failure}. {self._where(report)}")
+            exc.report = report  # type: ignore[attr-defined]
+            raise exc
+        return report
+
+    # -- helpers of stream()
+    def _more(self) -> bool:
+        """Append the next program command to the history; False at the end."""
+        if self._cancel.is_set() or self._pause.is_set():
+            return False
+        if self._cursor >= len(self._program):
+            return False
+        self._append(self._program.commands[self._cursor], self._cursor)
+        self._cursor += 1
+        return True
+
+    def _inject(self, commands: tuple[str, ...], before: int) -> None:
+        if not commands:
+            return
+        for text in commands:
+            self._append(text, -1)
+        self._injected.append((before, tuple(commands)))
+
+    def _program_acked(self) -> int:
+        """Index of the next program command not yet acknowledged."""
+        n = self._acked
+        while n > 0 and self._owner[n] < 0:
+            n -= 1
+        return self._owner[n] + 1 if n > 0 else self._start
+
+    def _finished(self) -> bool:
+        """Everything sent and answered: prove it (barrier) or accept ADVANCED_OK's word."""
+        if self._acked_reliable >= self._max_sent or self._barrier_ok:
+            return True
+        if self.firmware.advanced_ok or not self.config.end_barrier:
+            return self._acked >= self._max_sent
+        if not self._barrier_number:
+            self._inject((_BARRIER,), len(self._program))
+            self._barrier_number = len(self._frames) - 1
+        self._pump_once(lambda: False, allow_new=False)
+        return self._barrier_ok
+
+    def _drain(self, timeout: float) -> None:
+        """Let lines already sent be answered (retransmitting as asked), within ``timeout``."""
+        end = time.monotonic() + timeout
+        while (self._outstanding or self._next < len(self._frames)) and time.monotonic() < end:
+            if self._emergency.is_set():
+                return
+            try:
+                self._pump_once(lambda: False, allow_new=False)
+            except _Stop:
+                return
+
+    def _finish_cancel(self) -> None:
+        if self._emergency.is_set():
+            self._send_emergency()
+            if self._stop_reason is None:
+                self._stop_reason = "emergency stop (M112)"
+            return
+        if self._stop_reason is None:
+            self._stop_reason = "cancelled"
+        self._trim_unsent()
+        in_heating = any(command_code(self._texts[s.number]) in ("M109", "M190", "M191")
+                         for s in self._outstanding)
+        if in_heating:
+            self._write(b"M108\n")  # Marlin's emergency parser breaks a heating wait
+            self.transcript.write("Send", "M108")
+        self._drain(self.config.reply_timeout * 2)
+        if self._fatal:
+            return
+        before = self._program_acked()
+        self._inject(self.config.cancel_gcode, before)
+        # The cancel sequence is sent even though _cancel is set: it is not program text.
+        self._drain(self.config.reply_timeout * 4)
+
+    def _send_emergency(self) -> None:
+        with contextlib.suppress(Exception):
+            self._write(b"M112\n")
+            self.transcript.write("Send", "M112")
+        self._note("emergency stop: M112 sent")
+
+    def _trim_unsent(self) -> None:
+        """Forget program lines appended to the history but never transmitted."""
+        k = self._max_sent + 1
+        for n in range(k, len(self._frames)):
+            if self._owner[n] >= 0:
+                self._cursor = min(self._cursor, self._owner[n])
+        del self._frames[k:]
+        del self._texts[k:]
+        del self._owner[k:]
+        self._next = min(self._next, k)
+
+    def _do_pause(self, on_progress: Callable[[Progress], None] | None) -> None:
+        self._note("pausing: finishing the lines in flight")
+        self._trim_unsent()
+        self._drain(self.config.long_timeout)
+        at = self._program_acked()
+        state = state_at(self._program, at)
+        self._inject(self.config.pause_gcode, at)
+        self._drain(self.config.long_timeout)
+        self._note(f"paused before {self._program.where(at)}")
+        while self._pause.is_set() and not self._cancel.is_set():
+            if on_progress is not None:
+                on_progress(self._progress("paused"))
+            text = self._readline(time.monotonic() + 0.2)
+            if text is not None:
+                reply = parse_reply(text)
+                self._last_rx = time.monotonic()
+                if reply.kind == "action":
+                    self._on_action(reply.text)
+                elif reply.kind == "temperature":
+                    self._observe(reply)
+                elif reply.kind == "start":
+                    self._restarted = True
+                    raise _Stop
+        if self._cancel.is_set():
+            return
+        if self.config.pause_gcode:
+            self._inject(restore_commands(state, home_xy=False), at)
+        self._note("resumed")
+
+    def _reconnect(self) -> bool:
+        """Reopen the link; restore the state of a restarted firmware. True: streaming goes on."""
+        timeout = self.config.reconnect_timeout
+        if timeout <= 0:
+            return False
+        self._reconnects += 1
+        self._note("the link was lost: reconnecting")
+        if self._port is not None:
+            with contextlib.suppress(Exception):
+                self._port.close()
+        end = time.monotonic() + timeout
+        while True:
+            try:
+                self._port = open_port(self.port_name, baud=self.config.baud)
+                self._reader = LineReader(self._port)
+                break
+            except PrintabilityOSError:
+                if time.monotonic() >= end:
+                    self._stop_reason = (f"the link was lost and the port could not be reopened "
+                                         f"within {timeout:g} s")
+                    return False
+                time.sleep(0.25)
+        restarted = self._restarted or self._wait_banner(self.config.banner_timeout)
+        self._restarted = False
+        self._lost = False
+        self._timeouts_in_row = 0
+        self._outstanding.clear()
+        self._out_bytes = 0
+        self._resend_oks = 0
+        if not restarted:
+            # Same firmware, same line count: retransmit from the first unacknowledged line;
+            # the firmware refuses what it already has.
+            self._next = self._acked + 1
+            self._last_rx = time.monotonic()
+            self._note("reconnected; the firmware kept its state")
+            return True
+        # The firmware restarted: what was not acknowledged may or may not have run; resume
+        # from the first command not acknowledged, with the state restored.
+        at = self._program_acked()
+        unacked = [self._owner[n] for n in range(self._acked + 1, self._max_sent + 1)
+                   if self._owner[n] >= 0]
+        if unacked:
+            self._note(f"the firmware restarted with commands {unacked[0] + 1}–{unacked[-1] + 1} "
+                       f"unacknowledged; resending them (any of them may have run before the "
+                       f"restart)")
+        else:
+            self._note("the firmware restarted; every sent command had been acknowledged")
+        try:
+            self._handshake(self._max_sent)
+        except PrinterError as exc:
+            self._stop_reason = str(exc)
+            return False
+        # Rebuild the tail of the history: restore sequence, then the program from `at`.
+        del self._frames[self._max_sent + 1:]
+        del self._texts[self._max_sent + 1:]
+        del self._owner[self._max_sent + 1:]
+        self._acked = self._acked_reliable = self._max_sent
+        self._cursor = at
+        self._inject(restore_commands(state_at(self._program, at),
+                                      home_xy=self.config.home_on_restore), at)
+        self._next = self._max_sent + 1
+        self._last_rx = time.monotonic()
+        return True
+
+    def _check_axes(self, program: Program) -> None:
+        if not self.config.check_axes:
+            return
+        for letter in sorted(program.rotary_axes):
+            has = self.firmware.has_axis(letter)
+            if has:
+                continue
+            said = ("reports the axes " + ", ".join(sorted(self.firmware.axes))
+                    if self.firmware.axes else
+                    f"reports AXIS_COUNT:{self.firmware.axis_count}"
+                    if self.firmware.axis_count is not None else
+                    "does not report its axes (no M114 position report, no AXIS_COUNT)")
+            raise PrinterError(
+                f"{program.source} drives a rotary axis {letter} but the printer on "
+                f"{self.port_name} ({self.firmware.name or 'unnamed firmware'}) {said}; "
+                f"nothing was sent. Stream it to a T-T-R printer whose firmware has the axis "
+                f"(Marlin 2.1 with AXIS4_NAME '{letter}'), or regenerate the G-code for this "
+                f"machine; --no-axis-check overrides this check.")
+
+    def _progress(self, state: str) -> Progress:
+        done = self._program_acked()
+        seconds = self._program.seconds
+        return Progress(done, len(self._program), seconds[done - 1] if done else 0.0,
+                        self._program.total_seconds, time.monotonic() - self._t0,
+                        dict(self.temperatures), state, self._resends)
+
+    def _report(self, program: Program, mode: str, elapsed: float,
+                failure: str | None) -> StreamReport:
+        acknowledged = self._program_acked()
+        completed = failure is None and acknowledged >= len(program) and not self._cancel.is_set()
+        stopped = None if completed else (failure or self._stop_reason or "stopped")
+        return StreamReport(
+            program.source, self.port_name, self.firmware, mode, len(program), self._start,
+            acknowledged, completed, stopped, self._lines_sent, self._resends, self._stale,
+            self._timeouts, self._reconnects, elapsed, self._bytes_sent,
+            tuple(self._injected), tuple(self._events), dict(self.temperatures))
+
+    def _where(self, report: StreamReport) -> str:
+        program = self._program
+        n = report.acknowledged
+        in_flight = [self._owner[k] for k in range(self._acked + 1, self._max_sent + 1)
+                     if self._owner[k] >= 0]
+        if n == 0:
+            text = "No command of the file was acknowledged"
+        else:
+            text = f"The last command acknowledged was {program.where(n - 1)}"
+        if in_flight:
+            text += (f"; commands {in_flight[0] + 1}–{in_flight[-1] + 1} were sent but not "
+                     f"acknowledged and may or may not have run")
+        if n < len(program):
+            text += (f". To resume: printability stream {program.source} --port "
+                     f"{self.port_name} --resume-from {program.source_lines[n]}")
+        return text
+
+    def _save_resume(self, path: Path) -> None:
+        at = self._program_acked()
+        doc = {"source": self._program.source, "port": self.port_name,
+               "next_command": at,
+               "next_line": self._program.source_lines[at] if at < len(self._program) else None,
+               "total": len(self._program)}
+        with contextlib.suppress(OSError):
+            _atomic_json(path, doc)
+
+    def _install_sigint(self) -> Any:
+        if threading.current_thread() is not threading.main_thread():
+            return None
+
+        def handler(signum: int, frame_: Any) -> None:
+            if self._cancel.is_set():
+                self._emergency.set()
+            self._cancel.set()
+
+        try:
+            return signal.signal(signal.SIGINT, handler)
+        except ValueError:
+            return None
+
+    @staticmethod
+    def _restore_sigint(previous: Any) -> None:
+        if previous is not None:
+            with contextlib.suppress(ValueError):
+                signal.signal(signal.SIGINT, previous)
+
+    def send_commands(self, commands: list[str] | tuple[str, ...]) -> None:
+        """Send a few commands (numbered) outside a print: a console, a test."""
+        program = Program("<commands>", tuple(commands), tuple(range(1, len(commands) + 1)),
+                          tuple(0.0 for _ in commands), frozenset())
+        self.stream(program)
+
+
+@contextlib.contextmanager
+def _noop() -> Iterator[None]:
+    yield

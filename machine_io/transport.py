@@ -1,0 +1,129 @@
+"""Opening a port and reading lines from it quickly.
+
+A port is a device (``/dev/ttyUSB0``), a pty path (``/dev/pts/5``) or any
+pyserial URL (``socket://127.0.0.1:5000``, ``printsim://…``, ``loop://``).
+URL schemes that pyserial does not know are looked up in the packages of
+:data:`URL_HANDLER_PACKAGES` (pyserial's own mechanism,
+``serial.protocol_handler_packages``); the built-in simulator registers its
+scheme there.
+
+:class:`LineReader` replaces pyserial's ``readline``, which reads one byte per
+system call: it reads whatever is waiting and splits lines itself.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import serial
+
+from printability.errors import PrintabilityOSError
+
+__all__ = ["URL_HANDLER_PACKAGES", "LineReader", "open_port"]
+
+# Packages holding pyserial URL handlers (module ``<package>.protocol_<scheme>``).
+URL_HANDLER_PACKAGES: tuple[str, ...] = ("simulators.urlhandler",)
+
+
+def open_port(port: str, *, baud: int = 250000, timeout: float = 0.05) -> Any:
+    """Open a serial port, a pty or a pyserial URL.
+
+    Parameters
+    ----------
+    port
+        Device path, pty path or URL (``scheme://…``).
+    baud
+        Baud rate (ignored by ptys and sockets).
+    timeout
+        Read timeout of one ``read`` call, s (the host polls with it).
+
+    Returns
+    -------
+    serial.SerialBase
+        An open port.
+
+    Raises
+    ------
+    PrintabilityOSError
+        The port does not exist, is busy, or cannot be opened; the message says which.
+    """
+    if "://" in port:
+        for package in URL_HANDLER_PACKAGES:
+            if package not in serial.protocol_handler_packages:
+                serial.protocol_handler_packages.append(package)
+        try:
+            return serial.serial_for_url(port, baudrate=baud, timeout=timeout,
+                                         write_timeout=10.0)
+        except (serial.SerialException, ValueError, OSError) as exc:
+            raise PrintabilityOSError(
+                f"cannot open the printer port {port!r}: {exc}. Check the URL (pyserial URL "
+                f"schemes: socket://HOST:PORT, rfc2217://, loop://, and printsim:// for the "
+                f"built-in simulator).") from None
+    if not os.path.exists(port):
+        raise PrintabilityOSError(
+            f"the printer port {port!r} does not exist: is the printer plugged in and switched "
+            f"on? Serial ports are usually /dev/ttyUSB0 or /dev/ttyACM0 on Linux, COM3 on "
+            f"Windows; a simulator prints its port on the first line it writes.")
+    try:
+        return serial.Serial(port, baudrate=baud, timeout=timeout, write_timeout=10.0)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        hint = ""
+        if "ermission" in str(exc):
+            hint = " Add your user to the group that owns the port (often 'dialout')."
+        elif "busy" in str(exc).lower():
+            hint = " Another program (a host, a slicer, ModemManager) holds it."
+        raise PrintabilityOSError(f"cannot open the printer port {port!r}: {exc}.{hint}") from None
+
+
+class LineReader:
+    """Buffered line reading from a pyserial port.
+
+    Parameters
+    ----------
+    port
+        An open pyserial port whose ``timeout`` bounds one ``read``.
+    """
+
+    def __init__(self, port: Any) -> None:
+        self.port = port
+        self._buffer = bytearray()
+        self._lines: list[bytes] = []
+
+    def readline(self, deadline: float) -> bytes | None:
+        """The next complete line without its terminator, or None if ``deadline`` passes.
+
+        Parameters
+        ----------
+        deadline
+            ``time.monotonic()`` value after which to give up, s.
+
+        Raises
+        ------
+        OSError, serial.SerialException
+            The port failed (the caller decides whether to reconnect).
+        """
+        while True:
+            if self._lines:
+                return self._lines.pop(0)
+            chunk = self.port.read(max(1, self.port.in_waiting))
+            if chunk:
+                self._buffer += chunk
+                if b"\n" in chunk or b"\r" in chunk:
+                    parts = self._buffer.replace(b"\r", b"\n").split(b"\n")
+                    self._buffer = bytearray(parts.pop())
+                    self._lines.extend(p for p in parts if p.strip())
+                    if self._lines:
+                        continue
+            if time.monotonic() >= deadline:
+                return None
+
+    def pending(self) -> bool:
+        """True if a complete line is already buffered."""
+        return bool(self._lines)
+
+    def clear(self) -> None:
+        """Drop everything buffered (after a reconnect)."""
+        self._buffer.clear()
+        self._lines.clear()
