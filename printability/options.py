@@ -26,6 +26,7 @@ __all__ = [
     "NOZZLE_KINDS",
     "REGISTRIES",
     "SOURCE_FORMATS",
+    "STREAM_MODES",
     "UNITS",
     "Registry",
 ]
@@ -123,6 +124,14 @@ EXTRUDER_ERROR_POLICIES = _reg(
     ignore="log the error and keep streaming",
 )
 
+STREAM_MODES = _reg(
+    "stream mode",
+    auto="send-ahead when the firmware reports its free buffer (ADVANCED_OK), else ping-pong",
+    ping_pong="one line at a time: send the next line only after the 'ok' of the previous one",
+    send_ahead="keep several lines in flight, never more than the firmware's reported free "
+    "command slots and receive buffer (needs ADVANCED_OK; ping-pong otherwise)",
+)
+
 SOURCE_FORMATS = _reg(
     "source format",
     # "3mf" is not an identifier, hence the dict below.
@@ -189,6 +198,7 @@ REGISTRIES: dict[str, Registry] = {
         FLAVORS,
         FEED_POLICIES,
         EXTRUDER_ERROR_POLICIES,
+        STREAM_MODES,
         SOURCE_FORMATS,
         UNITS,
     )
