@@ -1,0 +1,550 @@
+"""Triangle meshes (STL, 3MF, OBJ) sliced into layers with trimesh.
+
+Slicing
+    The part is placed on the bed as a slicer would: it is shifted so its
+    lowest point is at z = 0 (``meta["z_offset"]`` is the shift, mm). Layer tops
+    are t₀ = first_layer_height, tᵢ = t₀ + i·layer_height; a layer exists while
+    its mid-height is below the part's top (Slic3r's rule). **A layer's region
+    is the section of the mesh at the layer's mid-height** (tᵢ − hᵢ/2), what
+    Slic3r/PrusaSlicer slice at too; it is the layer's best single estimate and
+    never lies on a horizontal facet at a layer boundary. A section plane that
+    passes exactly through a vertex is nudged up by a few nanometres so every
+    section is a set of simple closed loops. Sections are nested by even-odd
+    containment, so facet orientation and stored normals play no part (the
+    all-zero normals some writers store, e.g. Cura's, do not matter).
+
+Units
+    STL and OBJ carry no units: they are read as mm unless ``units=`` says
+    otherwise ("mm", "cm", "m", "in"). When a part read as mm is implausibly
+    small (longest side under 10 mm... as a bracket drawn in inches is), a
+    warning in ``meta["warnings"]`` suggests ``units="in"``. 3MF files state
+    their unit, which is honoured (``units=`` overrides it, with a warning).
+    ``fit=MM`` scales the part uniformly so its longest side is MM mm.
+
+Repair
+    Vertices are merged, degenerate and duplicate triangles dropped. A mesh
+    that is not closed gets its holes filled (:func:`trimesh.repair.fill_holes`);
+    if edges bordering a single triangle remain, the mesh is refused with a
+    :class:`~printability.errors.FileFormatError` (``repair=False`` refuses at
+    once). Edges shared by more than two triangles (bodies touching along an
+    edge) are accepted with a warning. An inside-out mesh is turned right side
+    out; a mesh that encloses no volume is refused.
+
+Memory
+    The triangle count is known from the file size before anything is read
+    (binary STL: 50 bytes per triangle); the load and the sections are
+    estimated and refused with :class:`~printability.errors.ResourceError` when
+    they exceed ``settings.max_memory``.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+
+from printability.errors import FileFormatError, InputError, PrintabilityOSError
+from printability.geometry import as_region
+from printability.layers import Layer, LayerStack
+from printability.settings import DEFAULT_SETTINGS, Settings
+from printability.sources._common import (
+    check_memory,
+    check_positive,
+    fill_segments,
+    nest_even_odd,
+    require_file,
+    unit_scale,
+)
+
+__all__ = [
+    "DEFAULT_LAYER_HEIGHT",
+    "MESH_EXTENSIONS",
+    "layer_heights",
+    "load_mesh",
+    "load_mesh_layers",
+    "section_region",
+]
+
+DEFAULT_LAYER_HEIGHT = 0.2
+"""Layer height used when none is given, mm (a common FDM default)."""
+MESH_EXTENSIONS = {".stl": "stl", ".3mf": "3mf", ".obj": "obj"}
+# Peak bytes per triangle while trimesh loads and processes a mesh (float64 vertices,
+# int64 faces, normals, edge tables, merge and adjacency caches).
+_BYTES_PER_TRIANGLE = 1200
+# Bytes per section segment: 2 float64 points, a shapely LineString, ring assembly.
+_BYTES_PER_SEGMENT = 400
+_INCH_HINT_MM = 10.0
+_3MF_UNITS_MM = {"micron": 1e-3, "millimeter": 1.0, "centimeter": 10.0, "inch": 25.4,
+                 "foot": 304.8, "meter": 1000.0}
+_PLANES_PER_BATCH = 16
+
+
+# ---------------------------------------------------------------- checks before loading
+
+
+def _stl_triangles(p: Path, size: int) -> int:
+    """Triangle count of an STL file from its header and size, or FileFormatError."""
+    with p.open("rb") as fh:
+        head = fh.read(84)
+    if head[:5].lower() == b"solid" and size != 84 + 50 * _declared(head):
+        # ASCII STL: check that it is text; ~250 bytes per facet (7 lines).
+        with p.open("rb") as fh:
+            sample = fh.read(4096)
+        if b"\0" in sample or not _is_text(sample):
+            raise FileFormatError(p, "starts like ASCII STL ('solid') but holds binary data "
+                                  "whose size does not match a binary STL either")
+        return max(1, size // 120)
+    if size < 84:
+        raise FileFormatError(p, f"too short for a binary STL: {size} bytes, fewer than the "
+                              "84-byte header; and not ASCII STL (no 'solid')")
+    n = _declared(head)
+    need = 84 + 50 * n
+    if size < need:
+        raise FileFormatError(
+            p, f"truncated binary STL: the header announces {n:,} triangles ({need:,} bytes) "
+            f"but the file has {size:,} bytes ({(size - 84) // 50:,} whole triangles)",
+            element="header")
+    if n == 0:
+        raise FileFormatError(p, "the binary STL header announces 0 triangles; expected a "
+                              "mesh", element="header")
+    if size > need + 4096:
+        raise FileFormatError(
+            p, f"not an STL file: as binary STL the header announces {n:,} triangles "
+            f"({need:,} bytes) but the file has {size:,} bytes; as ASCII STL it should "
+            "start with 'solid'", element="header")
+    return n
+
+
+def _declared(head: bytes) -> int:
+    return struct.unpack("<I", head[80:84])[0] if len(head) >= 84 else -1
+
+
+def _is_text(sample: bytes) -> bool:
+    try:
+        sample.decode("ascii")
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
+def _check_3mf(p: Path, limit: int) -> int:
+    """Refuse zip bombs and XML entity tricks in a 3MF package; estimate triangles."""
+    try:
+        with zipfile.ZipFile(p) as zf:
+            infos = zf.infolist()
+            total = sum(i.file_size for i in infos)
+            check_memory(p, total * 12, limit, "unpacking and parsing this 3MF package")
+            models = [i for i in infos if i.filename.lower().endswith(".model")]
+            if not models:
+                raise FileFormatError(p, "a 3MF package must hold a 3D/3dmodel.model part; "
+                                      "found none")
+            for i in models:
+                with zf.open(i) as fh:
+                    head = fh.read(65536)
+                if b"<!ENTITY" in head or b"<!DOCTYPE" in head:
+                    raise FileFormatError(p, "refused: the model part declares a DTD or XML "
+                                          "entities, which 3MF does not use and which can "
+                                          "expand without bound", element=i.filename)
+    except zipfile.BadZipFile:
+        raise FileFormatError(p, "expected a 3MF package (a zip archive); the file is not "
+                              "a zip archive") from None
+    # A <triangle v1=.. v2=.. v3=../> is ~40 bytes of XML.
+    return max(1, sum(i.file_size for i in models) // 40)
+
+
+def _estimate_triangles(p: Path, kind: str, size: int, limit: int) -> int:
+    if kind == "stl":
+        return _stl_triangles(p, size)
+    if kind == "3mf":
+        return _check_3mf(p, limit)
+    return max(1, size // 30)  # OBJ: "f a b c" lines plus "v x y z" lines
+
+
+# ---------------------------------------------------------------- loading
+
+
+def _edge_counts(mesh: Any) -> tuple[int, int]:
+    """(edges used by one face, edges used by more than two faces)."""
+    e = mesh.edges_sorted
+    if not len(e):
+        return 0, 0
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return int((counts == 1).sum()), int((counts > 2).sum())
+
+
+def load_mesh(
+    path: str | Path,
+    *,
+    file_type: str | None = None,
+    units: str | None = None,
+    fit: float | None = None,
+    repair: bool = True,
+    settings: Settings = DEFAULT_SETTINGS,
+) -> tuple[Any, dict[str, Any]]:
+    """Load, check and repair a mesh, scaled to mm (not yet placed on the bed).
+
+    Returns
+    -------
+    mesh, meta
+        A closed :class:`trimesh.Trimesh` in mm, and facts about it (``units``,
+        ``scale``, ``triangles``, ``repairs``, ``warnings``...).
+
+    Raises
+    ------
+    FileFormatError
+        Unreadable file, not closed after repair, or no volume.
+    ResourceError
+        The estimated memory exceeds ``settings.max_memory``.
+    """
+    import trimesh
+
+    p = require_file(path)
+    kind = file_type or MESH_EXTENSIONS.get(p.suffix.lower())
+    if kind not in MESH_EXTENSIONS.values():
+        raise InputError(f"{p}: not a mesh file; expected one of "
+                         f"{', '.join(MESH_EXTENSIONS)} (or file_type= stl, 3mf, obj)")
+    fit = check_positive("fit", fit)
+    try:
+        size = p.stat().st_size
+    except OSError as exc:
+        raise PrintabilityOSError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    if size == 0:
+        raise FileFormatError(p, "the file is empty; expected a mesh")
+    n_est = _estimate_triangles(p, kind, size, settings.max_memory)
+    check_memory(p, n_est * _BYTES_PER_TRIANGLE, settings.max_memory,
+                 f"loading this mesh (about {n_est:,} triangles)")
+    warnings: list[str] = []
+    try:
+        mesh = trimesh.load(str(p), file_type=kind, force="mesh", process=False)
+    except MemoryError:
+        raise
+    except Exception as exc:  # trimesh's loaders raise many unrelated types on bad input
+        raise FileFormatError(p, f"cannot read as {kind.upper()} ({type(exc).__name__}: "
+                              f"{exc})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise FileFormatError(p, f"no triangles found; expected a {kind.upper()} mesh")
+    if not np.isfinite(mesh.vertices).all():
+        raise FileFormatError(p, "the mesh has non-finite (NaN or infinite) vertex coordinates")
+
+    # Units.
+    file_units = None
+    if kind == "3mf":
+        file_units = str(mesh.units or mesh.metadata.get("units") or "millimeter").lower()
+    if units is not None:
+        k = unit_scale(units)
+        if file_units and abs(_3MF_UNITS_MM.get(file_units, 1.0) - k) > 1e-12:
+            warnings.append(f"units={units!r} overrides the file's unit {file_units!r}")
+    elif file_units:
+        if file_units not in _3MF_UNITS_MM:
+            raise FileFormatError(p, f"unknown 3MF unit {file_units!r}; expected one of "
+                                  f"{', '.join(_3MF_UNITS_MM)}", element="model@unit")
+        k = _3MF_UNITS_MM[file_units]
+    else:
+        k = 1.0
+    n_read = len(mesh.faces)
+
+    # Repair.
+    repairs = []
+    mesh.merge_vertices()
+    keep = mesh.nondegenerate_faces()
+    if not keep.all():
+        repairs.append(f"dropped {int((~keep).sum())} degenerate triangle(s)")
+        mesh.update_faces(keep)
+    uniq = mesh.unique_faces()
+    if uniq.sum() < len(mesh.faces):
+        repairs.append(f"dropped {len(mesh.faces) - int(uniq.sum())} duplicate triangle(s)")
+        mesh.update_faces(uniq)
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.faces) == 0:
+        raise FileFormatError(p, "every triangle is degenerate (zero area): the mesh "
+                              "encloses no volume")
+    extent = mesh.extents * k
+    if not (extent > 0).all():
+        raise FileFormatError(p, f"the mesh is flat (extent {extent[0]:.4g} × {extent[1]:.4g} "
+                              f"× {extent[2]:.4g} mm): it encloses no volume")
+    open_edges, nonmanifold = _edge_counts(mesh)
+    if open_edges:
+        if not repair:
+            raise FileFormatError(p, f"the mesh is not closed: {open_edges} edge(s) border "
+                                  "only one triangle; pass repair=True to fill the holes")
+        trimesh.repair.fill_holes(mesh)
+        after, nonmanifold = _edge_counts(mesh)
+        if after:
+            raise FileFormatError(
+                p, f"the mesh is not closed: {open_edges} edge(s) border only one triangle and "
+                f"{after} still do after filling holes; a section of an open surface has no "
+                "inside. Repair the mesh (e.g. in a mesh editor or PrusaSlicer's Fix) first")
+        repairs.append(f"filled holes bordered by {open_edges} open edge(s)")
+    if nonmanifold:
+        warnings.append(f"{nonmanifold} edge(s) are shared by more than two triangles "
+                        "(bodies touching along an edge); sections there may merge bodies")
+    trimesh.repair.fix_winding(mesh)
+    with np.errstate(invalid="ignore", divide="ignore"):  # zero volume: centre of mass is 0/0
+        vol = float(mesh.volume)
+    if vol < 0:
+        mesh.invert()
+        vol = -vol
+        repairs.append("turned inside-out facets right side out")
+    if not (vol * k**3 > 1e-9 * float(np.prod(extent))):
+        raise FileFormatError(p, f"the mesh encloses no volume ({vol * k**3:.3g} mm³ inside a "
+                              f"{extent[0]:.4g} × {extent[1]:.4g} × {extent[2]:.4g} mm box)")
+    if k != 1.0:
+        mesh.apply_scale(k)
+    f = 1.0
+    if fit is not None:
+        f = fit / float(mesh.extents.max())
+        mesh.apply_scale(f)
+    if units is None and file_units is None and fit is None:
+        longest = float(mesh.extents.max())
+        if longest < _INCH_HINT_MM:
+            dims = " × ".join(f"{v:.4g}" for v in mesh.extents)
+            as_in = " × ".join(f"{v * 25.4:.4g}" for v in mesh.extents)
+            warnings.append(f"the part measures only {dims} mm read as mm; STL has no units: "
+                            f"if it was drawn in inches ({as_in} mm) pass units='in'")
+    meta = {
+        "format": kind,
+        "units": file_units or (units or "mm"),
+        "scale": k * f,
+        "triangles": len(mesh.faces),
+        "triangles_read": n_read,
+        "volume": float(mesh.volume),
+        "extents": tuple(float(v) for v in mesh.extents),
+        "repairs": repairs,
+        "warnings": warnings,
+    }
+    return mesh, meta
+
+
+# ---------------------------------------------------------------- slicing
+
+
+def layer_heights(
+    height: float, layer_height: float, first_layer_height: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Layer tops and thicknesses for a part ``height`` mm tall.
+
+    Tops t₀ = first, tᵢ = t₀ + i·layer_height while the mid-height tᵢ − h/2 is
+    below ``height`` (at least one layer).
+    """
+    first = layer_height if first_layer_height is None else first_layer_height
+    # Layer i ≥ 1 has mid-height first + (i − ½)·layer_height; keep it while below the top.
+    n_more = max(0, math.ceil((height - first) / layer_height + 0.5) - 1)
+    tops = first + layer_height * np.arange(n_more + 1, dtype=float)
+    hs = np.full(len(tops), layer_height)
+    hs[0] = first
+    return tops, hs
+
+
+def _nudge(planes: np.ndarray, vz: np.ndarray, scale: float) -> np.ndarray:
+    """Move planes off vertex heights so every section is made of simple loops."""
+    eps = max(scale, 1.0) * 1e-9
+    out = planes.copy()
+    for _ in range(8):
+        idx = np.clip(np.searchsorted(vz, out), 1, len(vz) - 1)
+        near = np.minimum(np.abs(vz[idx] - out), np.abs(vz[idx - 1] - out)) < eps
+        if not near.any():
+            break
+        out[near] += 10 * eps
+        eps *= 2
+    return out
+
+
+def _loops(segs: np.ndarray) -> list[np.ndarray] | None:
+    """Closed loops from section segments, or None if some point is not on exactly two.
+
+    In a section of a closed 2-manifold by a plane through no vertex every end
+    point is shared by exactly two segments. The loops are then the cycles of
+    the permutation "leave a segment by its other end", found without a Python
+    loop by pointer jumping: cycle labels (the smallest slot) and positions
+    (distance to the cycle's end) in O(n log n).
+    """
+    pts = np.ascontiguousarray(np.round(segs.reshape(-1, 2), 9))
+    _, node = np.unique(pts.view(np.complex128).ravel(), return_inverse=True)
+    node = node.reshape(-1)
+    zero = node[0::2] == node[1::2]
+    if zero.any():  # zero-length segments carry no geometry
+        keep = np.repeat(~zero, 2)
+        pts, node = pts[keep], node[keep]
+        _, node = np.unique(node, return_inverse=True)
+    n2 = len(node)
+    if n2 == 0 or not (np.bincount(node) == 2).all():
+        return None
+    idx = np.arange(n2)
+    pairs = np.argsort(node, kind="stable").reshape(-1, 2)
+    partner = np.empty(n2, dtype=np.int64)
+    partner[pairs[:, 0]] = pairs[:, 1]
+    partner[pairs[:, 1]] = pairs[:, 0]
+    # A "slot" is a segment end; entering a segment at slot i, we leave at i ^ 1 and
+    # enter the next segment at the slot sharing that point.
+    succ = partner[idx ^ 1]
+    rounds = int(np.ceil(np.log2(n2))) + 1
+    lab, f = idx.copy(), succ.copy()
+    for _ in range(rounds):
+        lab = np.minimum(lab, lab[f])
+        f = f[f]
+    # Each loop is two cycles (one per direction): keep the one holding the smaller slot.
+    keep = lab < lab[idx ^ 1]
+    # Rank within each cycle: cut it before its label, then list-rank by doubling.
+    pred = np.empty(n2, dtype=np.int64)
+    pred[succ] = idx
+    nxt = succ.copy()
+    starts = idx[lab == idx]
+    nxt[pred[starts]] = -1
+    dist = (nxt >= 0).astype(np.int64)
+    f = nxt
+    for _ in range(rounds):
+        ok = f >= 0
+        fo = np.where(ok, f, 0)
+        dist = np.where(ok, dist + dist[fo], dist)
+        f = np.where(ok, f[fo], -1)
+    k = idx[keep]
+    order = k[np.lexsort((-dist[k], lab[k]))]
+    cuts = np.flatnonzero(np.diff(lab[order])) + 1
+    return [pts[o] for o in np.split(order, cuts)]
+
+
+def _section(segs: np.ndarray, area_tol: float) -> list[Any]:
+    """Polygons of one section from its segments (m, 2, 2), mm."""
+    if not len(segs):
+        return []
+    loops = _loops(segs)
+    if loops is not None:
+        return nest_even_odd(loops, min_area=area_tol)
+    # Touching loops or near-degenerate cuts: fall back to the exact arrangement.
+    snapped = np.round(segs, 9)
+    region = fill_segments(snapped[:, 0], snapped[:, 1], "evenodd")
+    return [g for g in shapely.get_parts(region) if g.area > area_tol]
+
+
+def _multiplane(mesh: Any, planes: np.ndarray) -> list[np.ndarray]:
+    from trimesh.intersections import mesh_multiplane
+
+    lines, tfs, _ = mesh_multiplane(mesh, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], planes)
+    out = []
+    for seg, tf in zip(lines, tfs, strict=True):
+        seg = np.asarray(seg, dtype=float).reshape(-1, 2, 2)
+        # 2-D plane frame → world x, y (identity for a z normal, but do not rely on it).
+        out.append(seg @ tf[:2, :2].T + tf[:2, 3])
+    return out
+
+
+def section_region(mesh: Any, z: float, *, settings: Settings = DEFAULT_SETTINGS) -> Any:
+    """The section of ``mesh`` by the plane at height ``z`` (mesh coordinates), as a region.
+
+    Raises
+    ------
+    InputError
+        The plane misses the part.
+    """
+    vz = np.unique(mesh.vertices[:, 2])
+    plane = _nudge(np.array([float(z)]), vz, float(mesh.extents.max()))
+    polys = _section(_multiplane(mesh, plane)[0], settings.area_tolerance)
+    return as_region(shapely.MultiPolygon(polys) if polys else shapely.Polygon(),
+                     name=f"section at z={z:g}")
+
+
+def load_mesh_layers(
+    path: str | Path,
+    *,
+    file_type: str | None = None,
+    layer_height: float | None = None,
+    first_layer_height: float | None = None,
+    units: str | None = None,
+    fit: float | None = None,
+    repair: bool = True,
+    settings: Settings = DEFAULT_SETTINGS,
+) -> LayerStack:
+    """Slice an STL / 3MF / OBJ mesh into layers (see the module notes).
+
+    Parameters
+    ----------
+    path
+        The mesh file.
+    file_type
+        ``"stl"``, ``"3mf"`` or ``"obj"``; by default from the extension.
+    layer_height
+        Layer thickness, mm (default :data:`DEFAULT_LAYER_HEIGHT`).
+    first_layer_height
+        Thickness of the first layer, mm (default: ``layer_height``).
+    units
+        Unit of the file's coordinates (STL/OBJ have none; default mm).
+    fit
+        Scale so the part's longest side is ``fit`` mm.
+    repair
+        Fill holes of a mesh that is not closed (else refuse it).
+    settings
+        ``max_memory`` bounds the work; ``progress`` shows a bar across layers.
+
+    Returns
+    -------
+    LayerStack
+        Layers bottom to top, z = layer top above the bed; ``meta`` holds
+        ``z_offset`` (mm added to the file's z), ``slice_at = "mid-height"``, the
+        load facts of :func:`load_mesh` and ``warnings``.
+    """
+    lh = check_positive("layer_height", layer_height) or DEFAULT_LAYER_HEIGHT
+    flh = check_positive("first_layer_height", first_layer_height) or lh
+    mesh, meta = load_mesh(path, file_type=file_type, units=units, fit=fit, repair=repair,
+                           settings=settings)
+    p = Path(path)
+    z_offset = -float(mesh.bounds[0, 2])
+    mesh.apply_translation([0.0, 0.0, z_offset])
+    height = float(mesh.bounds[1, 2])
+    tops, hs = layer_heights(height, lh, flh)
+    mids = tops - hs / 2
+    if mids[0] >= height:
+        mids[0] = height / 2
+        meta["warnings"].append(f"the part ({height:.4g} mm) is thinner than half the first "
+                                f"layer ({flh:g} mm); its one layer is cut at mid-part")
+    # Memory: each triangle yields one segment per plane crossing it.
+    fz = mesh.vertices[mesh.faces][:, :, 2]
+    crossings = (np.searchsorted(mids, fz.max(axis=1), side="right")
+                 - np.searchsorted(mids, fz.min(axis=1), side="left"))
+    n_seg = int(crossings.sum())
+    check_memory(p, n_seg * _BYTES_PER_SEGMENT + len(mesh.faces) * _BYTES_PER_TRIANGLE,
+                 settings.max_memory,
+                 f"slicing {len(mids):,} layers ({n_seg:,} section segments)")
+    planes = _nudge(mids, np.unique(mesh.vertices[:, 2]), float(mesh.extents.max()))
+
+    layers: list[Layer] = []
+    empty = 0
+    progress = None
+    task = None
+    if settings.progress:
+        from rich.progress import Progress
+
+        progress = Progress(transient=True)
+        progress.start()
+        task = progress.add_task(f"slicing {p.name}", total=len(planes))
+    try:
+        for s in range(0, len(planes), _PLANES_PER_BATCH):
+            batch = planes[s : s + _PLANES_PER_BATCH]
+            for j, segs in enumerate(_multiplane(mesh, batch)):
+                i = s + j
+                polys = _section(segs, settings.area_tolerance)
+                if not polys:
+                    empty += 1
+                    continue
+                region = as_region(shapely.MultiPolygon(polys),
+                                   name=f"{p}, layer {i} (z={tops[i]:g})")
+                layers.append(Layer(z=float(tops[i]), height=float(hs[i]), region=region,
+                                    index=len(layers), meta={"slice_z": float(batch[j])}))
+            if progress is not None:
+                progress.update(task, advance=len(batch))
+    finally:
+        if progress is not None:
+            progress.stop()
+    if empty:
+        meta["warnings"].append(f"{empty} layer(s) with an empty section were left out")
+    if not layers:
+        raise FileFormatError(p, "no layer has a section with area; the mesh encloses no "
+                              "printable volume at this layer height")
+    meta.update(z_offset=z_offset, layer_height=lh, first_layer_height=flh,
+                slice_at="mid-height", height=height)
+    return LayerStack(tuple(layers), source=str(p), meta=meta)
+

@@ -1,0 +1,485 @@
+"""SVG drawings and Slic3r's multi-layer slice SVG.
+
+Safety
+    Every file is parsed with :mod:`defusedxml` first. Documents that declare
+    XML entities (the "billion laughs" expansion bomb) or reference external
+    entities (which read local files or URLs) are refused with a
+    :class:`~printability.errors.FileFormatError`; SVG drawings never need them.
+    Only then does :mod:`svgelements` read the document.
+
+Ordinary drawings (one planar layer, z = 0, height 0)
+    * Transforms, ``<use>``, basic shapes, paths with lines, arcs, quadratic
+      and cubic Béziers are handled by svgelements; curves are flattened so no
+      point of a curve is farther than ``settings.chord_tolerance`` mm from the
+      polyline (bounds: cubic ¾·max|Δ²P|/n², quadratic ¼·max|Δ²P|/n², arcs
+      r·(1 − cos(Δθ/2))).
+    * **What is filled.** Every element with a visible fill (not ``none``, not
+      fully transparent, not ``display:none``) is ink, whatever its colour; its
+      region follows its ``fill-rule`` (``nonzero`` by default, ``evenodd``),
+      computed exactly from winding numbers, so crossing subpaths are right.
+      Open subpaths are closed for filling, as SVG renders them. Strokes are
+      ignored, text and images too. The ink of all elements is united.
+    * **Background rule** (the game-icons quirk): an element whose filled
+      region covers at least 99.5 % of the canvas (viewBox), followed by other
+      filled elements, is a page background, not part of the shape; it is
+      dropped and a warning is recorded. A lone full-canvas element is kept.
+    * **Outline drawings**: if nothing is filled but stroked elements have
+      closed subpaths (CAD exports often draw outlines only), those outlines are
+      filled with the even-odd rule and a warning says so.
+    * **Axes**: SVG's y axis points down the page; the result has **y growing
+      upward**, with the origin at the canvas's lower-left corner:
+      (x, y) ↦ (x, H − y), H the canvas height.
+    * **Units**: when the root ``width``/``height`` carry a physical unit
+      (mm, cm, in, pt, pc, Q) the drawing keeps its true size. Otherwise
+      (unitless, px, % or absent) one CSS pixel (= one user unit of an
+      unscaled document) is taken as **1 mm** and a warning says so;
+      ``units=`` names the unit of that pixel instead ("px" means 1/96 in).
+      ``fit=MM`` finally scales the shape about the origin so the longest side
+      of its bounding box is MM mm.
+
+Slic3r slice SVG (``slic3r --export-svg``), recognised by its
+``xmlns:slic3r`` namespace and ``<g slic3r:z=...>`` layers
+    Coordinates are already slicer millimetres with y up (no flip). Two writer
+    generations exist: Slic3r ≤ 1.2 (Perl) writes ``<polygon slic3r:type=
+    "contour"|"hole">`` and puts the **slicing plane (mid-height)** in
+    ``slic3r:z``; later C++ writers emit ``<path d="M x y ... z">`` (even-odd)
+    and put the **layer top** there. Layer tops and heights are reconstructed
+    accordingly (mid-heights: t₀ = 2·z₀, tᵢ = 2·zᵢ − tᵢ₋₁). Support material
+    (``<line>``, ``<circle slic3r:type="support">``) is not part of the target
+    and is skipped; groups without ``slic3r:z`` (raft layers) too.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+import shapely.affinity
+from shapely.geometry import MultiPolygon
+
+from printability.errors import FileFormatError
+from printability.geometry import as_region, polygons_of
+from printability.layers import Layer, LayerStack
+from printability.settings import DEFAULT_SETTINGS, Settings
+from printability.sources._common import (
+    apply_fit,
+    check_positive,
+    fill_rings,
+    lazy_import,
+    nest_even_odd,
+    planar_stack,
+    read_bytes,
+    require_file,
+    unit_scale,
+)
+
+__all__ = ["BACKGROUND_COVERAGE", "is_slic3r_svg", "load_svg_layers", "load_svg_region"]
+
+BACKGROUND_COVERAGE = 0.995
+"""Fraction of the canvas an element must cover to count as a page background."""
+
+SLIC3R_NS = "http://slic3r.org/namespaces/slic3r"
+_SVG_NS = "http://www.w3.org/2000/svg"
+# svgelements keeps a Python object per path segment and point: budget generously.
+_BYTES_PER_INPUT_BYTE = 120.0
+_PHYSICAL_MM = {"mm": 1.0, "cm": 10.0, "in": 25.4, "pt": 25.4 / 72, "pc": 25.4 / 6,
+                "q": 0.25}
+_LENGTH = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([a-zA-Z%]*)\s*$")
+_NUM = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+
+
+def _local(tag: Any) -> str:
+    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
+
+
+def _parse_xml(path: Path, raw: bytes) -> Any:
+    """Parse with defusedxml; refuse entity declarations and external references."""
+    dx = lazy_import("defusedxml", "svg", "SVG files safely")
+    from defusedxml import ElementTree as DET
+
+    try:
+        return DET.fromstring(raw, forbid_dtd=False, forbid_entities=True, forbid_external=True)
+    except dx.EntitiesForbidden as exc:
+        raise FileFormatError(
+            path, f"refused: the document declares the XML entity {exc.name!r}; entity "
+            "declarations can expand without bound ('billion laughs') or read other files, "
+            "and SVG drawings do not need them", element="<!ENTITY>") from None
+    except (dx.ExternalReferenceForbidden, dx.DTDForbidden) as exc:
+        raise FileFormatError(
+            path, f"refused: the document references an external resource ({exc}); "
+            "external entities can read local files or URLs", element="<!DOCTYPE>") from None
+    except DET.ParseError as exc:
+        line = exc.position[0] if getattr(exc, "position", None) else None
+        raise FileFormatError(path, f"expected well-formed XML (an SVG document); {exc.msg}"
+                              if hasattr(exc, "msg") else f"expected well-formed XML; {exc}",
+                              line=line) from None
+
+
+def is_slic3r_svg(root: Any) -> bool:
+    """True for a Slic3r multi-layer slice SVG (``<g slic3r:z=...>`` layers)."""
+    z_attr = f"{{{SLIC3R_NS}}}z"
+    return any(z_attr in g.attrib for g in root.iter() if _local(g.tag) == "g")
+
+
+# ---------------------------------------------------------------- Slic3r slices
+
+
+def _points_attr(path: Path, text: str, where: str) -> np.ndarray:
+    nums = _NUM.findall(text or "")
+    if len(nums) % 2 or len(nums) < 6:
+        raise FileFormatError(path, f"expected at least 3 'x,y' points; found {len(nums)} "
+                              "numbers", element=where)
+    return np.array(nums, dtype=float).reshape(-1, 2)
+
+
+def _path_rings(path: Path, d: str, where: str) -> list[np.ndarray]:
+    """Rings of a polygonal path ``d`` (M/L/Z, absolute, as Slic3r writes it)."""
+    if re.search(r"[^MmLlZz0-9eE+\-.,\s]", d):
+        se = lazy_import("svgelements", "svg", "SVG paths with curves")
+        rings = []
+        for sp in se.Path(d).as_subpaths():
+            pts = [(s.end.x, s.end.y) for s in sp if s.end is not None]
+            if len(pts) >= 3:
+                rings.append(np.array(pts, dtype=float))
+        return rings
+    if re.search(r"[ml]", d):
+        raise FileFormatError(path, "relative path commands (m, l) are not expected in a "
+                              "Slic3r slice SVG", element=where)
+    rings = []
+    for chunk in re.split(r"[Mm]", d):
+        nums = _NUM.findall(chunk)
+        if not nums:
+            continue
+        if len(nums) % 2:
+            raise FileFormatError(path, "expected pairs of coordinates in the path data",
+                                  element=where)
+        a = np.array(nums, dtype=float).reshape(-1, 2)
+        if len(a) >= 3:
+            rings.append(a)
+    return rings
+
+
+def _slic3r_stack(path: Path, root: Any, *, units: str | None, fit: float | None,
+                  settings: Settings) -> LayerStack:
+    z_attr = f"{{{SLIC3R_NS}}}z"
+    type_attr = f"{{{SLIC3R_NS}}}type"
+    k = unit_scale(units)
+    zs: list[float] = []
+    regions: list[Any] = []
+    writers: set[str] = set()
+    skipped_groups = 0
+    support = 0
+    for gi, g in enumerate(e for e in root.iter() if _local(e.tag) == "g"):
+        gid = g.get("id") or f"g[{gi}]"
+        where = f"<g id={gid!r}>"
+        if z_attr not in g.attrib:
+            skipped_groups += 1
+            continue
+        try:
+            z = float(g.get(z_attr))
+        except ValueError:
+            raise FileFormatError(path, f"expected a number in slic3r:z; found "
+                                  f"{g.get(z_attr)!r}", element=where) from None
+        if not math.isfinite(z):
+            raise FileFormatError(path, "slic3r:z is not finite", element=where)
+        rings: list[np.ndarray] = []
+        for el in g:
+            tag = _local(el.tag)
+            kind = el.get(type_attr, "")
+            if kind == "support" or tag in ("line", "circle"):
+                support += 1
+                continue
+            ewhere = f"{where} <{tag}>"
+            if tag == "polygon":
+                writers.add("perl")
+                rings.append(_points_attr(path, el.get("points", ""), ewhere))
+            elif tag == "path":
+                writers.add("c++")
+                rings.extend(_path_rings(path, el.get("d", ""), ewhere))
+        polys = nest_even_odd([r * k for r in rings], min_area=settings.area_tolerance)
+        if not polys:
+            continue
+        zs.append(z)
+        regions.append(MultiPolygon(polys))
+    if not zs:
+        raise FileFormatError(path, "a Slic3r slice SVG with no layer holding a closed "
+                              "outline; expected <g slic3r:z=...> groups with <polygon> or "
+                              "<path> outlines")
+    # Layers of several objects at one height are one layer.
+    order = np.argsort(zs, kind="stable")
+    merged: list[tuple[float, Any]] = []
+    for i in order:
+        if merged and abs(zs[i] - merged[-1][0]) < 1e-9:
+            merged[-1] = (merged[-1][0], shapely.union(merged[-1][1], regions[i]))
+        else:
+            merged.append((zs[i], regions[i]))
+    warnings: list[str] = []
+    mids = "perl" in writers and "c++" not in writers
+    zvals = [z * k for z, _ in merged]
+    tops: list[float] = []
+    if mids:
+        for i, z in enumerate(zvals):
+            tops.append(2 * z if i == 0 else 2 * z - tops[-1])
+        if any(b <= a for a, b in zip([0.0, *tops[:-1]], tops, strict=True)):
+            warnings.append("slic3r:z read as mid-heights gave non-increasing layer tops; "
+                            "layer tops taken half a layer above each slicing plane instead")
+            gaps = np.diff([0.0, *zvals])
+            tops = [z + g / 2 for z, g in zip(zvals, gaps, strict=True)]
+    else:
+        tops = zvals
+    heights = np.diff([0.0, *tops]).tolist()
+    all_geom = MultiPolygon([p for _, r in merged for p in r.geoms])
+    f = 1.0
+    if fit is not None:
+        _, f = apply_fit(all_geom, fit)
+    layers = []
+    for i, ((_, reg), top, h) in enumerate(zip(merged, tops, heights, strict=True)):
+        if f != 1.0:
+            reg = shapely.affinity.scale(reg, f, f, origin=(0, 0))
+        region = as_region(reg, name=f"{path}, layer {i} (z={top:g})")
+        layers.append(Layer(z=float(top), height=float(h), region=region, index=i))
+    meta = {
+        "format": "slic3r-svg",
+        "writer": "Slic3r <= 1.2 (polygons, slic3r:z = slicing plane)" if mids
+        else "Slic3r C++ SVGExport (paths, slic3r:z = layer top)",
+        "skipped_groups": skipped_groups,
+        "support_elements": support,
+        "scale": k * f,
+        "warnings": warnings,
+    }
+    return LayerStack(tuple(layers), source=str(path), meta=meta)
+
+
+# ---------------------------------------------------------------- ordinary drawings
+
+
+def _n_bezier(ctrl: np.ndarray, tol: float, k: float) -> int:
+    # max deviation of the chord polyline ≤ k·max|Δ²P| / n²  (k = 3/4 cubic, 1/4 quadratic)
+    d2 = np.abs(ctrl[2:] - 2 * ctrl[1:-1] + ctrl[:-2])
+    m = float(np.hypot(d2[:, 0], d2[:, 1]).max()) if len(d2) else 0.0
+    return max(1, math.ceil(math.sqrt(k * m / tol))) if m > 0 else 1
+
+
+def _flatten_subpath(sp: Any, se: Any, tol: float) -> tuple[np.ndarray, bool]:
+    pts: list[tuple[float, float]] = []
+    closed = False
+    for seg in sp:
+        if isinstance(seg, se.Move):
+            pts.append((seg.end.x, seg.end.y))
+        elif isinstance(seg, se.Close):
+            closed = True
+        elif isinstance(seg, se.Line):
+            pts.append((seg.end.x, seg.end.y))
+        elif isinstance(seg, (se.CubicBezier, se.QuadraticBezier)):
+            if isinstance(seg, se.CubicBezier):
+                ctrl = np.array([[p.x, p.y] for p in
+                                 (seg.start, seg.control1, seg.control2, seg.end)])
+                n = _n_bezier(ctrl, tol, 0.75)
+            else:
+                ctrl = np.array([[p.x, p.y] for p in (seg.start, seg.control, seg.end)])
+                n = _n_bezier(ctrl, tol, 0.25)
+            xy = seg.npoint(np.linspace(0.0, 1.0, n + 1)[1:])
+            pts.extend(map(tuple, np.asarray(xy, dtype=float)))
+        elif isinstance(seg, se.Arc):
+            r = max(abs(seg.rx), abs(seg.ry))
+            sweep = abs(float(seg.sweep))
+            if r <= tol or sweep == 0:
+                n = 1
+            else:
+                n = max(1, math.ceil(sweep / (2 * math.acos(1 - tol / r))))
+            xy = seg.npoint(np.linspace(0.0, 1.0, n + 1)[1:])
+            pts.extend(map(tuple, np.asarray(xy, dtype=float)))
+        elif seg.end is not None:
+            pts.append((seg.end.x, seg.end.y))
+    a = np.array(pts, dtype=float).reshape(-1, 2)
+    if len(a) and not closed:
+        closed = bool(np.allclose(a[0], a[-1]))
+    return a, closed
+
+
+def _visible_fill(el: Any) -> bool:
+    fill = el.fill
+    if fill is None or fill.value is None or fill.alpha == 0:
+        return False
+    for key in ("fill-opacity", "opacity"):
+        v = el.values.get(key)
+        try:
+            if v is not None and float(v) == 0:
+                return False
+        except ValueError:
+            pass
+    return str(el.values.get("visibility", "visible")).strip() not in ("hidden", "collapse")
+
+
+def _doc_scale(root: Any, svg: Any, units: str | None, warnings: list[str]) -> float:
+    """mm per svgelements px (svgelements maps the viewBox onto width × height in px)."""
+    if units is not None:
+        return unit_scale(units)
+    for attr, px in (("width", svg.width), ("height", svg.height)):
+        v = root.get(attr)
+        m = _LENGTH.match(v) if v else None
+        if m and m.group(2).lower() in _PHYSICAL_MM and px:
+            # From the document's own numbers, not svgelements' rounded px-per-mm.
+            return float(m.group(1)) * _PHYSICAL_MM[m.group(2).lower()] / float(px)
+    warnings.append("the SVG gives no physical size (width/height without mm, cm or in): "
+                    "one px (user unit) was taken as 1 mm; pass units= or fit= to say otherwise")
+    return 1.0
+
+
+def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
+                   fit: float | None, settings: Settings) -> LayerStack:
+    se = lazy_import("svgelements", "svg", "SVG files")
+    warnings: list[str] = []
+    try:
+        svg = se.SVG.parse(io.BytesIO(raw), reify=True, ppi=96.0)
+    except Exception as exc:  # svgelements raises many types on bad documents
+        raise FileFormatError(path, f"the SVG could not be interpreted ({exc})") from None
+    mm_per_px = _doc_scale(root, svg, units, warnings)
+    canvas_w = float(svg.width) if svg.width else 0.0
+    canvas_h = float(svg.height) if svg.height else 0.0
+    shapes = [e for e in svg.elements() if isinstance(e, se.Shape)]
+    ignored = sum(1 for e in svg.elements() if isinstance(e, (se.Text, se.Image)))
+    if ignored:
+        warnings.append(f"{ignored} text or image element(s) ignored (only shapes are read)")
+    # Tolerance in px, tightened by the fit scale estimated from the shapes' bounding boxes.
+    boxes = [b for b in (e.bbox() for e in shapes) if b is not None]
+    scale = mm_per_px
+    if fit is not None and boxes:
+        b = np.array(boxes, dtype=float)
+        longest = max(b[:, 2].max() - b[:, 0].min(), b[:, 3].max() - b[:, 1].min())
+        if longest > 0:
+            scale = fit / longest
+    tol = settings.chord_tolerance / scale
+
+    filled: list[tuple[str, Any]] = []
+    outlines: list[np.ndarray] = []
+    for idx, el in enumerate(shapes):
+        p = abs(se.Path(el))  # abs() applies the element's transform to its segments
+        fill_ok = _visible_fill(el)
+        stroke_ok = el.stroke is not None and el.stroke.value is not None
+        if not (fill_ok or stroke_ok):
+            continue
+        rings = []
+        for sp in p.as_subpaths():
+            a, closed = _flatten_subpath(sp, se, tol)
+            if len(a) < 3:
+                continue
+            if fill_ok:
+                rings.append(a)
+            elif closed:
+                outlines.append(a)
+        if fill_ok and rings:
+            rule = str(el.values.get("fill-rule", "nonzero")).strip().lower()
+            rule = "evenodd" if rule == "evenodd" else "nonzero"
+            reg = fill_rings(rings, rule)
+            if not reg.is_empty and reg.area > 0:
+                name = el.id or f"<{type(el).__name__.lower()}> #{idx + 1}"
+                filled.append((name, reg))
+    if len(filled) > 1 and canvas_w > 0 and canvas_h > 0:
+        canvas = shapely.box(0, 0, canvas_w, canvas_h)
+        name, first = filled[0]
+        if first.intersection(canvas).area >= BACKGROUND_COVERAGE * canvas.area:
+            warnings.append(f"the first filled element ({name}) covers the whole canvas and "
+                            "is read as a page background, not part of the shape")
+            filled = filled[1:]
+    if filled:
+        geom = shapely.union_all([g for _, g in filled])
+    elif outlines:
+        warnings.append("no filled element: the closed stroked outlines were filled "
+                        "(even-odd) instead")
+        geom = fill_rings(outlines, "evenodd")
+    else:
+        raise FileFormatError(path, "no closed shape: expected at least one filled element "
+                              "(path, rect, circle, polygon...) or closed outline with area; "
+                              f"found {len(shapes)} shape element(s), none enclosing area")
+    # px → mm with y up, origin at the canvas's lower-left corner.
+    if canvas_h <= 0:
+        canvas_h = geom.bounds[3]
+    geom = shapely.transform(geom, lambda c: np.column_stack(
+        (c[:, 0] * mm_per_px, (canvas_h - c[:, 1]) * mm_per_px)))
+    geom = shapely.make_valid(geom) if not geom.is_valid else geom
+    if not polygons_of(geom):
+        raise FileFormatError(path, "no closed shape with positive area")
+    geom, f = apply_fit(geom, fit)
+    meta = {"format": "svg", "scale": mm_per_px * f, "elements": len(filled),
+            "canvas_mm": (canvas_w * mm_per_px * f, canvas_h * mm_per_px * f),
+            "warnings": warnings}
+    return planar_stack(geom, path=path, meta=meta, min_area=settings.area_tolerance)
+
+
+def _read(path: str | Path, settings: Settings) -> tuple[Path, bytes, Any]:
+    p = require_file(path)
+    raw = read_bytes(p, factor=_BYTES_PER_INPUT_BYTE, limit=settings.max_memory,
+                     what="parsing this SVG file")
+    root = _parse_xml(p, raw)
+    if _local(root.tag) != "svg":
+        raise FileFormatError(p, f"expected an <svg> root element; found <{_local(root.tag)}>",
+                              element=f"<{_local(root.tag)}>")
+    return p, raw, root
+
+
+def load_svg_layers(
+    path: str | Path,
+    *,
+    units: str | None = None,
+    fit: float | None = None,
+    settings: Settings = DEFAULT_SETTINGS,
+) -> LayerStack:
+    """Read an SVG file: a drawing (one planar layer) or a Slic3r slice SVG (many layers).
+
+    Parameters
+    ----------
+    path
+        The ``.svg`` file.
+    units
+        Unit of one px / user unit when the document gives no physical size
+        (overrides the document's own when given); one of
+        :data:`printability.options.UNITS`.
+    fit
+        Scale so the longest side of the shape's bounding box is ``fit`` mm.
+    settings
+        ``chord_tolerance`` (mm) bounds curve flattening; ``max_memory`` the parse.
+
+    Returns
+    -------
+    LayerStack
+        ``meta["warnings"]`` lists the assumptions made (units, background...).
+
+    Raises
+    ------
+    FileFormatError
+        Not XML, entity declarations or external references (refused), not an
+        ``<svg>`` root, or no closed shape.
+    """
+    fit = check_positive("fit", fit)
+    p, raw, root = _read(path, settings)
+    if is_slic3r_svg(root):
+        return _slic3r_stack(p, root, units=units, fit=fit, settings=settings)
+    return _drawing_stack(p, raw, root, units=units, fit=fit, settings=settings)
+
+
+def load_svg_region(
+    path: str | Path,
+    *,
+    units: str | None = None,
+    fit: float | None = None,
+    settings: Settings = DEFAULT_SETTINGS,
+) -> MultiPolygon:
+    """The filled region of a planar SVG drawing, mm, y up (see :func:`load_svg_layers`).
+
+    Raises
+    ------
+    FileFormatError
+        As :func:`load_svg_layers`, and for a multi-layer slice SVG.
+    """
+    stack = load_svg_layers(path, units=units, fit=fit, settings=settings)
+    if len(stack) != 1:
+        raise FileFormatError(path, f"expected a single outline; this slice SVG has "
+                              f"{len(stack)} layers")
+    return stack[0].region
+
