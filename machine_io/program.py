@@ -361,7 +361,7 @@ def _estimate(commands: Iterable[str]) -> tuple[list[float], set[str]]:
     moves count their angle as length, like a firmware that treats all axes
     as Euclidean would.
     """
-    pos: dict[str, float] = {}
+    pos: dict[str, float] = {"E": 0.0}  # X, Y, Z unknown until the first move names them
     absolute = e_abs = True
     feed = 1500.0  # mm/min until the file sets one
     inch = 1.0
