@@ -1,0 +1,198 @@
+"""Ranking candidate nozzles: least material lost first, then the fastest build.
+
+DESIGN.md §2: ranking = ascending λ(G \\ S) (area for one layer, volume over
+layers), ties broken by an estimated build time.
+
+Build-time model
+----------------
+The time to fill the as-built region S with beads laid side by side at a
+constant feed:
+
+    t = Σ_layers λ(S_layer) / (w · v)      [mm² / (mm · mm/s) = s]
+
+with v the deposition speed (``speed``, mm/s) and w the bead width of the
+nozzle. On a machine with a rotary axis the motion planner turns an
+asymmetric nozzle to lay its widest bead where it fits (DESIGN.md §3), so
+w = ``max_width``; on an XY machine the nozzle cannot turn and paths run in
+every direction, so w is the mean bead width over directions (for a circle
+both are the diameter). Each orifice of a multi-orifice head lays its own
+bead, so their widths add. The model ignores travel, acceleration, layer
+changes and the narrower beads of thin features: it is meant to order
+nozzles that lose the same material, not to predict a print time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from printability.errors import InputError
+from printability.mmc.result import MMCResult
+from printability.nozzle import Nozzle
+
+__all__ = ["DEFAULT_SPEED", "RankRow", "bead_width_for_time", "rank"]
+
+DEFAULT_SPEED = 40.0
+"""Deposition speed of the build-time model, mm/s (a typical perimeter/infill speed)."""
+
+
+@dataclass(frozen=True)
+class RankRow:
+    """One nozzle's place in a ranking.
+
+    Attributes
+    ----------
+    rank
+        1 = best (least lost, then fastest).
+    spec
+        The nozzle SPEC.
+    nozzle
+        The nozzle.
+    layers
+        Number of layer results aggregated.
+    unit
+        ``"mm²"`` for one layer or summed areas, ``"mm³"`` when layer heights were given.
+    target, as_built, lost
+        λ(G), λ(S), λ(G \\ S), summed over layers (times the layer heights for volumes).
+    lost_bounds
+        (lo, hi) summed the same way: the certified interval of every engine.
+    lost_fraction
+        lost / target.
+    bead_width
+        w of the build-time model, mm.
+    build_time
+        Estimated time to deposit S, s.
+    components
+        Largest number of components of P over the layers.
+    """
+
+    rank: int
+    spec: str
+    nozzle: Nozzle
+    layers: int
+    unit: str
+    target: float
+    as_built: float
+    lost: float
+    lost_bounds: tuple[float, float]
+    lost_fraction: float
+    bead_width: float
+    build_time: float
+    components: int
+
+
+def bead_width_for_time(nozzle: Nozzle, *, rotary: bool) -> float:
+    """The bead width w of the build-time model (module docstring), mm."""
+    total = 0.0
+    for f in nozzle.footprints:
+        one = Nozzle(nozzle.spec, (f,), nozzle.mount_angle)
+        if rotary:
+            total += one.max_width
+        else:
+            total += float(np.mean([one.bead_width(d) for d in np.arange(0.0, 180.0, 1.0)]))
+    return total
+
+
+def _layers_of(entry: MMCResult | Sequence[MMCResult], i: int) -> list[MMCResult]:
+    layers = [entry] if isinstance(entry, MMCResult) else list(entry)
+    if not layers:
+        raise InputError(f"ranking: entry {i + 1} has no layer results")
+    for r in layers:
+        if not isinstance(r, MMCResult):
+            raise InputError(f"ranking: entry {i + 1} holds a {type(r).__name__}, expected "
+                             "MMCResult objects (one per layer)")
+    specs = {r.nozzle.spec for r in layers}
+    if len(specs) > 1:
+        raise InputError(f"ranking: entry {i + 1} mixes nozzles {sorted(specs)}; give one list "
+                         "of layer results per nozzle")
+    return layers
+
+
+def rank(
+    results: Sequence[MMCResult | Sequence[MMCResult]],
+    *,
+    heights: Sequence[float] | None = None,
+    speed: float = DEFAULT_SPEED,
+    tie_tolerance: float = 1e-6,
+) -> tuple[RankRow, ...]:
+    """Order nozzles by lost area (or volume), ties broken by estimated build time.
+
+    Parameters
+    ----------
+    results
+        One entry per nozzle: an :class:`MMCResult` (one layer) or a sequence
+        of them (that nozzle's layers, bottom to top).
+    heights
+        Layer thicknesses, mm, one per layer (every entry must have that
+        many layers). When given, areas become volumes (mm³); otherwise
+        areas are summed over layers (mm²).
+    speed
+        Deposition speed v of the build-time model, mm/s.
+    tie_tolerance
+        Lost amounts closer than this (mm² or mm³), plus a relative 10⁻⁹,
+        are a tie and are ordered by build time.
+
+    Returns
+    -------
+    tuple of RankRow
+        Best first; ``rank`` numbers 1, 2, ...; equal lost and time keep the
+        order of ``results``.
+
+    Raises
+    ------
+    InputError
+        No results, an empty entry, an entry mixing nozzles, heights of the
+        wrong length or not positive, a speed that is not positive.
+    """
+    if not results:
+        raise InputError("ranking: no nozzle results to rank")
+    if not (speed > 0 and math.isfinite(speed)):
+        raise InputError(f"ranking: speed must be a positive number of mm/s; got {speed!r}")
+    if tie_tolerance < 0:
+        raise InputError(f"ranking: tie_tolerance must be ≥ 0; got {tie_tolerance!r}")
+    entries = [_layers_of(e, i) for i, e in enumerate(results)]
+    if heights is not None:
+        h = np.asarray(heights, dtype=float)
+        if h.ndim != 1 or not np.all(np.isfinite(h)) or np.any(h <= 0):
+            raise InputError("ranking: heights must be positive layer thicknesses in mm")
+        for i, layers in enumerate(entries):
+            if len(layers) != len(h):
+                raise InputError(f"ranking: entry {i + 1} has {len(layers)} layers but "
+                                 f"{len(h)} heights were given")
+    unsorted = []
+    for layers in entries:
+        w_h = np.asarray(heights, float) if heights is not None else np.ones(len(layers))
+        noz = layers[0].nozzle
+        rotary = layers[0].machine.has_rotary and not noz.is_round
+        w = bead_width_for_time(noz, rotary=rotary)
+        target = float(sum(r.target_area * k for r, k in zip(layers, w_h, strict=True)))
+        built = float(sum(r.as_built_area * k for r, k in zip(layers, w_h, strict=True)))
+        lost = float(sum(r.lost_area * k for r, k in zip(layers, w_h, strict=True)))
+        lo = float(sum(r.lost_area_bounds[0] * k for r, k in zip(layers, w_h, strict=True)))
+        hi = float(sum(r.lost_area_bounds[1] * k for r, k in zip(layers, w_h, strict=True)))
+        area_built = float(sum(r.as_built_area for r in layers))
+        unsorted.append(dict(
+            spec=noz.spec, nozzle=noz, layers=len(layers),
+            unit="mm³" if heights is not None else "mm²",
+            target=target, as_built=built, lost=lost, lost_bounds=(lo, hi),
+            lost_fraction=lost / target if target > 0 else 0.0,
+            bead_width=w, build_time=area_built / (w * speed),
+            components=max(r.components.count for r in layers),
+        ))
+    order = sorted(range(len(unsorted)), key=lambda i: unsorted[i]["lost"])
+    # group runs of near-equal lost amounts, then order each run by build time
+    ranked: list[int] = []
+    run = [order[0]]
+    for i in order[1:]:
+        prev = unsorted[run[-1]]["lost"]
+        cur = unsorted[i]["lost"]
+        if cur - prev <= tie_tolerance + 1e-9 * max(abs(cur), abs(prev)):
+            run.append(i)
+        else:
+            ranked.extend(sorted(run, key=lambda j: (unsorted[j]["build_time"], j)))
+            run = [i]
+    ranked.extend(sorted(run, key=lambda j: (unsorted[j]["build_time"], j)))
+    return tuple(RankRow(rank=n + 1, **unsorted[i]) for n, i in enumerate(ranked))
