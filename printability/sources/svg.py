@@ -18,7 +18,9 @@ Ordinary drawings (one planar layer, z = 0, height 0)
       region follows its ``fill-rule`` (``nonzero`` by default, ``evenodd``),
       computed exactly from winding numbers, so crossing subpaths are right.
       Open subpaths are closed for filling, as SVG renders them. Strokes are
-      ignored, text and images too. The ink of all elements is united.
+      ignored, text and images too; ``<defs>``, ``<symbol>`` and clip paths
+      are drawn only where ``<use>`` places them. The ink of all elements is
+      united.
     * **Background rule** (the game-icons quirk): an element whose filled
       region covers at least 99.5 % of the canvas (viewBox), followed by other
       filled elements, is a page background, not part of the shape; it is
@@ -331,10 +333,41 @@ def _doc_scale(root: Any, svg: Any, units: str | None, warnings: list[str]) -> f
     return 1.0
 
 
+def _hide_symbols(root: Any, raw: bytes) -> bytes:
+    """Move ``<symbol>`` elements into ``<defs>``: drawn only where a ``<use>`` places them.
+
+    svgelements 1.9 renders a symbol's children in place as well; inside
+    ``<defs>`` it does not, and ``<use>`` still finds them.
+    """
+    import xml.etree.ElementTree as ET
+
+    parent = {c: p for p in root.iter() for c in p}
+    loose = [e for e in root.iter() if _local(e.tag) == "symbol"
+             and not any(_local(a.tag) == "defs" for a in _ancestors(e, parent))]
+    if not loose:
+        return raw
+    defs = ET.SubElement(root, f"{{{_SVG_NS}}}defs")
+    for e in loose:
+        parent[e].remove(e)
+        defs.append(e)
+    ET.register_namespace("", _SVG_NS)
+    ET.register_namespace("xlink", "http://www.w3.org/1999/xlink")
+    return ET.tostring(root)
+
+
+def _ancestors(e: Any, parent: dict[Any, Any]) -> list[Any]:
+    out = []
+    while e in parent:
+        e = parent[e]
+        out.append(e)
+    return out
+
+
 def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
                    fit: float | None, settings: Settings) -> LayerStack:
     se = lazy_import("svgelements", "svg", "SVG files")
     warnings: list[str] = []
+    raw = _hide_symbols(root, raw)
     try:
         svg = se.SVG.parse(io.BytesIO(raw), reify=True, ppi=96.0)
     except Exception as exc:  # svgelements raises many types on bad documents

@@ -38,6 +38,8 @@ def _drawing(tmp_path: Path, insunits: int = 4, name: str = "part.dxf") -> Path:
     blk.add_lwpolyline([(0, 0), (5, 0), (5, 5), (0, 5)], close=True)
     msp.add_blockref("SQ", (400, 0))
     msp.add_blockref("SQ", (410, 0))
+    # An old-style 2-D POLYLINE triangle (area 50).
+    msp.add_polyline2d([(500, 0), (510, 0), (510, 10)], close=True)
     msp.add_text("label")
     path = tmp_path / name
     doc.saveas(path)
@@ -55,7 +57,7 @@ EXPECTED = {
 def test_entities_chains_holes_blocks(tmp_path: Path):
     stack = load_dxf_layers(_drawing(tmp_path))
     region = stack[0].region
-    assert len(region.geoms) == 6
+    assert len(region.geoms) == 7
     by_x = {round(g.bounds[0]): g for g in region.geoms}
     # Inscribed flattening: the area lost is at most perimeter × chord tolerance (0.002 mm).
     tol = Settings().chord_tolerance
@@ -63,6 +65,7 @@ def test_entities_chains_holes_blocks(tmp_path: Path):
     assert 0 <= by_x[100].area - EXPECTED["plate"] <= 2 * math.pi * 3 * tol
     assert 0 <= EXPECTED["ellipse"] - by_x[192].area <= 2 * math.pi * 8 * tol
     assert by_x[400].area == by_x[410].area == pytest.approx(25.0)
+    assert by_x[500].area == pytest.approx(50.0)
     spline = next(g for g in region.geoms if 290 < g.centroid.x < 330)
     for x, y in SPLINE_FIT:  # a fit-point spline passes through its fit points
         assert spline.exterior.distance(shapely.Point(x, y)) < 1e-9

@@ -148,6 +148,27 @@ def test_3mf_units_from_file(tmp_path: Path):
     assert stack[0].area == pytest.approx(200.0 * 25.4**2)
 
 
+def test_3mf_package_checks(tmp_path: Path):
+    notzip = tmp_path / "fake.3mf"
+    notzip.write_bytes(b"solid nothing here")
+    with pytest.raises(FileFormatError, match=r"fake\.3mf: .*not a zip archive"):
+        load_mesh_layers(notzip)
+    # A highly compressed model part whose unpacked size would exceed the memory limit.
+    bomb = tmp_path / "bomb.3mf"
+    with zipfile.ZipFile(bomb, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("3D/3dmodel.model", b" " * (20 << 20))
+    assert bomb.stat().st_size < 100_000
+    with pytest.raises(ResourceError, match=r"bomb\.3mf.*unpacking"):
+        load_mesh_layers(bomb, settings=Settings(max_memory=64 << 20))
+    # Entity declarations are refused before any XML parser sees them.
+    ent = tmp_path / "entity.3mf"
+    with zipfile.ZipFile(ent, "w") as zf:
+        zf.writestr("3D/3dmodel.model", '<?xml version="1.0"?><!DOCTYPE m [<!ENTITY a "aa">]>'
+                    '<model unit="millimeter"/>')
+    with pytest.raises(FileFormatError, match=r"entity\.3mf, 3D/3dmodel\.model: refused"):
+        load_mesh_layers(ent)
+
+
 def test_obj(tmp_path: Path):
     path = _box_file(tmp_path, "box.obj")
     stack = load_mesh_layers(path, layer_height=1.0, units="cm")

@@ -151,6 +151,17 @@ def test_hidden_and_unfilled_elements_are_ignored(tmp_path: Path):
     assert any("text" in w for w in stack.meta["warnings"])
 
 
+def test_defs_symbols_and_use(tmp_path: Path):
+    body = ('<defs><rect id="r" width="10" height="10"/>'
+            '<clipPath id="c"><rect width="50" height="50"/></clipPath></defs>'
+            '<symbol id="s"><circle cx="5" cy="5" r="3"/></symbol>'
+            '<use href="#r" x="20" y="20"/><use href="#r" x="40" y="20"/>')
+    assert load_svg_region(_svg(tmp_path, body)).area == pytest.approx(200.0)
+    used = body + '<use href="#s" x="60" y="60"/>'
+    region = load_svg_region(_svg(tmp_path, used, name="used.svg"))
+    assert region.area == pytest.approx(200.0 + math.pi * 9, rel=1e-3)
+
+
 def test_stroked_outline_drawing_is_filled(tmp_path: Path):
     body = '<path d="M0 0H30V10H0Z" fill="none" stroke="black"/>'
     stack = load_svg_layers(_svg(tmp_path, body))
