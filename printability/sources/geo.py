@@ -324,12 +324,14 @@ def load_geojson_layers(
                               f"{exc.start}") from None
     try:
         obj = json.loads(text)
+        polys: list[Polygon] = []
+        skipped: list[str] = []
+        _collect(p, obj, "$", polys, skipped)
     except json.JSONDecodeError as exc:
         raise FileFormatError(p, f"expected JSON; {exc.msg} (column {exc.colno})",
                               line=exc.lineno) from None
-    polys: list[Polygon] = []
-    skipped: list[str] = []
-    _collect(p, obj, "$", polys, skipped)
+    except RecursionError:
+        raise FileFormatError(p, "the JSON is nested too deeply to be GeoJSON") from None
     if not polys:
         raise FileFormatError(p, "no Polygon or MultiPolygon geometry; expected at least one "
                               f"polygon (found only: {', '.join(skipped) or 'nothing'})")

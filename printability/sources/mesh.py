@@ -2,7 +2,8 @@
 
 Slicing
     The part is placed on the bed as a slicer would: it is shifted so its
-    lowest point is at z = 0 (``meta["z_offset"]`` is the shift, mm). Layer tops
+    lowest point is at z = 0 (``meta["z_offset"]`` is the shift, mm); x and y
+    stay as in the file. Layer tops
     are t₀ = first_layer_height, tᵢ = t₀ + i·layer_height; a layer exists while
     its mid-height is below the part's top (Slic3r's rule). **A layer's region
     is the section of the mesh at the layer's mid-height** (tᵢ − hᵢ/2), what

@@ -130,7 +130,10 @@ def test_projected_crs_is_not_geographic(tmp_path: Path):
      '{"type": "MultiPolygon", "coordinates": 5}}]}',
      r"\$\.features\[0\]\.geometry: expected MultiPolygon coordinates to be a list"),
     ('{"type": "LineString", "coordinates": [[0, 0], [1, 1]]}', "no Polygon or MultiPolygon"),
-])
+    ('{"type": "GeometryCollection", "geometries": [' * 5000 + "]}" * 5000,
+     "nested too deeply"),
+], ids=["truncated-json", "unknown-type", "short-ring", "non-number", "bad-multipolygon",
+        "lines-only", "deep-nesting"])
 def test_malformed_geojson(tmp_path: Path, text: str, match: str):
     path = tmp_path / "bad.geojson"
     path.write_text(text)

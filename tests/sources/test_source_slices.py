@@ -80,7 +80,8 @@ def test_units_and_fit(tmp_path: Path):
     ("0.3\n0.7\nthree\n", r"line 3: expected a point count"),
     ("0.3\n0.7\n3\n0 0\n1 1\n2 2\n", r"no closed curve with positive area"),
     ("0.3\n0.7\n3\n0 0\n1 0\n0 nan\n", r"line 6: expected finite coordinates"),
-])
+], ids=["one-line", "bad-width", "widths-swapped", "truncated", "bad-number", "three-numbers",
+        "bad-count", "no-area", "nan"])
 def test_malformed(tmp_path: Path, text: str, match: str):
     path = tmp_path / "bad.txt"
     path.write_text(text)
