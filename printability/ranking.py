@@ -51,6 +51,8 @@ class RankRow:
         The nozzle SPEC.
     nozzle
         The nozzle.
+    machine
+        Name of the machine the results were computed for.
     layers
         Number of layer results aggregated.
     unit
@@ -72,6 +74,7 @@ class RankRow:
     rank: int
     spec: str
     nozzle: Nozzle
+    machine: str
     layers: int
     unit: str
     target: float
@@ -175,7 +178,7 @@ def rank(
         hi = float(sum(r.lost_area_bounds[1] * k for r, k in zip(layers, w_h, strict=True)))
         area_built = float(sum(r.as_built_area for r in layers))
         unsorted.append(dict(
-            spec=noz.spec, nozzle=noz, layers=len(layers),
+            spec=noz.spec, nozzle=noz, machine=layers[0].machine.name, layers=len(layers),
             unit="mm³" if heights is not None else "mm²",
             target=target, as_built=built, lost=lost, lost_bounds=(lo, hi),
             lost_fraction=lost / target if target > 0 else 0.0,
