@@ -34,6 +34,7 @@ __all__ = [
     "fill_rings",
     "fill_segments",
     "lazy_import",
+    "multipolygon",
     "nest_even_odd",
     "planar_stack",
     "read_bytes",
@@ -82,6 +83,11 @@ def require_file(path: str | Path) -> Path:
         raise PrintabilityOSError(f"{p}: no such file")
     if not p.is_file():
         raise PrintabilityOSError(f"{p}: not a regular file")
+    try:
+        with p.open("rb"):
+            pass
+    except OSError as exc:
+        raise PrintabilityOSError(f"{p}: cannot read ({exc.strerror or exc})") from None
     return p
 
 

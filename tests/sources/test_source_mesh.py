@@ -92,6 +92,27 @@ def test_zero_normals_do_not_matter(shared_data: Path):
     assert stack.volume == pytest.approx(7882, rel=0.01)
 
 
+def test_plane_through_vertices_is_nudged():
+    # |x| + |y| + |z| <= 1: the plane z = 0 passes through the four equatorial vertices.
+    v = [[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]
+    f = [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [1, 0, 5], [2, 1, 5], [3, 2, 5], [0, 3, 5]]
+    octa = trimesh.Trimesh(vertices=v, faces=f, process=False)
+    assert octa.is_watertight and octa.volume > 0
+    assert section_region(octa, 0.0).area == pytest.approx(2.0, abs=1e-6)
+
+
+def test_bodies_touching_along_an_edge(tmp_path: Path):
+    a = trimesh.creation.box(bounds=[[0, 0, 0], [10, 10, 5]])
+    b = trimesh.creation.box(bounds=[[10, 10, 0], [20, 20, 5]])
+    path = tmp_path / "touching.stl"
+    trimesh.util.concatenate([a, b]).export(path)
+    stack = load_mesh_layers(path, layer_height=1.0)
+    assert any("more than two triangles" in w for w in stack.meta["warnings"])
+    # The two squares meet at one point in every section: the loop walk cannot
+    # tell them apart there, the winding-number arrangement can.
+    assert [lay.area for lay in stack] == pytest.approx([200.0] * 5)
+
+
 def test_inches_warning_and_units(shared_data: Path):
     path = shared_data / "stl" / "idler_riser_inches.stl"
     as_mm = load_mesh_layers(path)
