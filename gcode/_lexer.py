@@ -151,6 +151,9 @@ def _lex_impl(buf, string_codes, pow10):
             bend -= 1
 
         i = s
+        # a UTF-8 byte-order mark (some editors write one) is not content
+        if i + 2 < bend and buf[i] == 0xEF and buf[i + 1] == 0xBB and buf[i + 2] == 0xBF:
+            i += 3
         while i < bend and (buf[i] == 32 or buf[i] == 9):
             i += 1
         # optional N line number

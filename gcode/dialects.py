@@ -73,8 +73,8 @@ _WIDTH = {
 _WIPE_START = _rx(rb"; ?WIPE_START")
 _WIPE_END = _rx(rb"; ?WIPE_END")
 _FLAVOR = (
-    re.compile(rb"^;FLAVOR:[ \t]*([A-Za-z0-9_-]+)", re.M),
-    re.compile(rb"^; gcode_flavor = ([A-Za-z0-9_-]+)", re.M),
+    re.compile(rb";FLAVOR:[ \t]*([A-Za-z0-9_-]+)"),
+    re.compile(rb"; gcode_flavor = ([A-Za-z0-9_-]+)"),
 )
 _SLICERS = (
     (re.compile(rb"SuperSlicer"), "SuperSlicer"),
@@ -199,7 +199,7 @@ def _decode(b: bytes) -> str:
 
 def scan_comments(data: bytes, line_start: np.ndarray) -> CommentInfo:
     """Find the dialect's markers. ``line_start``: the tokeniser's line starts."""
-    head = data[:65536] + data[-65536:]
+    head = data[:65536] + b"\n" + data[-262144:]
     slicer = "unknown"
     for rx, name in _SLICERS:
         if rx.search(head):
@@ -207,7 +207,8 @@ def scan_comments(data: bytes, line_start: np.ndarray) -> CommentInfo:
             break
     flavor = None
     for rx in _FLAVOR:
-        m = rx.search(data)
+        # slicers write it in the header (Cura) or the settings block at the end
+        m = rx.search(head)
         if m:
             flavor = m.group(1).decode("ascii", "replace").lower()
             break

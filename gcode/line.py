@@ -8,6 +8,7 @@ that are not UTF-8, and the line terminator.
 
 Segment kinds:
 
+``bom``       a UTF-8 byte-order mark at the start of the line
 ``ws``        blanks (spaces, tabs) between tokens
 ``number``    the ``N123`` line number
 ``command``   ``G1``, ``M862.3``, ``T0`` or a named (Klipper) command ``EXCLUDE_OBJECT_DEFINE``
@@ -161,7 +162,11 @@ def parse_line(raw: bytes) -> ParsedLine:
             segs.append(Segment("ws", body[pos : m.end()]))
         return m.end()
 
-    i = ws_at(0)
+    i = 0
+    if body.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
+        segs.append(Segment("bom", body[:3]))
+        i = 3
+    i = ws_at(i)
     m = _NWORD.match(body, i)
     if m:
         line_number = int(m.group(1))

@@ -232,6 +232,10 @@ def parse_gcode(
         raise FileFormatError(
             path, "this is a binary G-code (.bgcode) file; export plain-text G-code instead", line=1
         )
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise FileFormatError(
+            path, "this is UTF-16 text; save the G-code as ASCII or UTF-8", line=1
+        )
     lex_lines, lex_words = _lexer.lex(data, engine=engine)
     n = len(lex_lines["kind"])
     lines = np.empty(n, LINE_DTYPE)
@@ -344,8 +348,9 @@ def _truncation_checks(data, lines, info, path):
                 f"{path}: the last line has no line terminator and is a move; "
                 "the file may be truncated"
             )
-    if b"; prusaslicer_config = begin" in data[-200000:] and (
-        b"; prusaslicer_config = end" not in data[-2000:]
+    tail = max(0, len(data) - 300000)
+    if data.find(b"; prusaslicer_config = begin", tail) >= 0 and (
+        data.find(b"; prusaslicer_config = end", max(0, len(data) - 2000)) < 0
     ):
         raise FileFormatError(
             path,
@@ -353,7 +358,7 @@ def _truncation_checks(data, lines, info, path):
             "the file is truncated",
             line=len(lines),
         )
-    if b"; CONFIG_BLOCK_START" in data[-300000:] and b"; CONFIG_BLOCK_END" not in data[-300000:]:
+    if data.find(b"; CONFIG_BLOCK_START", tail) >= 0 and data.find(b"; CONFIG_BLOCK_END", tail) < 0:
         raise FileFormatError(
             path,
             "the BambuStudio/OrcaSlicer configuration block starts but never ends: "

@@ -298,6 +298,11 @@ def test_binary_junk_is_refused(tmp_path):
         read_gcode(p)
     with pytest.raises(FileFormatError, match="binary G-code"):
         parse_gcode(b"GCDE\x01\x00\x00\x00")
+    with pytest.raises(FileFormatError, match="UTF-16"):
+        parse_gcode("G1 X1\n".encode("utf-16"))
+    # a text file with many lines that are not G-code
+    with pytest.raises(FileFormatError, match="does not look like a G-code file"):
+        parse_gcode(b"G1 X1\n" + b"%%% hello\n" * 50)
 
 
 def test_non_utf8_comment_is_kept():

@@ -68,6 +68,7 @@ CASES = [
     (b"G3 Z.8 I.044 J-1.216 P1  F30000\n", "command", "G", 3, None,
      [("Z", 0.8), ("I", 0.044), ("J", -1.216), ("P", 1.0), ("F", 30000.0)]),
     (b"G1 X1", "command", "G", 1, None, [("X", 1.0)]),
+    (b"\xef\xbb\xbfG1 X2\n", "command", "G", 1, None, [("X", 2.0)]),  # UTF-8 BOM
     (b"G1 X1\r", "command", "G", 1, None, [("X", 1.0)]),
 ]
 
@@ -113,7 +114,8 @@ def test_line_endings_and_missing_final_newline():
 
 
 # Random lines over an alphabet that exercises every branch of the grammar.
-_ALPHABET = [*b"GMTNXYZEFIJRPgxyz0123456789.-+ \t;*\"=_[],", 0xFF, 0xC3, 0xA9]
+_ALPHABET = [*b"GMTNXYZEFIJRPgxyz0123456789.-+ \t;*\"=_[],", 0xFF, 0xC3, 0xA9, 0xEF, 0xBB,
+             0xBF]
 _line = st.lists(st.sampled_from(_ALPHABET), max_size=40).map(bytes)
 _eol = st.sampled_from([b"\n", b"\r\n", b""])
 
