@@ -517,9 +517,10 @@ def load_mesh_layers(
     progress = None
     task = None
     if settings.progress:
+        from rich.console import Console
         from rich.progress import Progress
 
-        progress = Progress(transient=True)
+        progress = Progress(console=Console(stderr=True), transient=True)
         progress.start()
         task = progress.add_task(f"slicing {p.name}", total=len(planes))
     try:

@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+import shapely
 
 from printability.errors import (
     FileFormatError,
@@ -20,6 +21,35 @@ from printability.options import REGISTRIES, SOURCE_FORMATS, UNITS
 from printability.settings import Settings
 from printability.sources import EXTENSIONS, detect_format, load_layers
 from printability.sources._common import UNIT_MM
+from tests.conftest import SHARED_DATA
+
+
+def _shared_inputs() -> list[str]:
+    if not SHARED_DATA.is_dir():
+        return []
+    rels = [f"stl/{p.name}" for p in sorted((SHARED_DATA / "stl").glob("*.stl"))]
+    rels += [f"svg/{p.name}" for p in sorted((SHARED_DATA / "svg").glob("*.svg"))]
+    rels += [p.name for p in sorted(SHARED_DATA.glob("*.geojson"))]
+    slices = sorted(p for p in (SHARED_DATA / "slices").glob("*.txt") if "LICENSE" not in p.name)
+    rels += [f"slices/{p.name}" for p in slices[::25]]
+    return rels
+
+
+@pytest.mark.parametrize("rel", _shared_inputs())
+def test_every_shared_input_through_load_layers(shared_data: Path, rel: str):
+    path = shared_data / rel
+    fmt = detect_format(path)
+    kwargs = {"layer_height": 1.0} if fmt == "stl" else {"fit": 100.0} if fmt == "geojson" else {}
+    stack = load_layers(path, **kwargs)
+    assert stack.units == "mm" and stack.source == str(path)
+    assert all(lay.area > 0 and lay.region.is_valid for lay in stack)
+    if fmt == "stl":
+        assert len(stack) >= 1 and stack.volume > 0
+    else:
+        assert stack.is_planar
+    minx, miny, maxx, maxy = shapely.MultiPolygon(
+        [g for lay in stack for g in lay.region.geoms]).bounds
+    assert 0 < max(maxx - minx, maxy - miny) < 1000.0  # a printable size, in mm
 
 
 def test_registries():

@@ -285,7 +285,8 @@ def test_memory_limit_applies_to_slicing(shared_data: Path):
                          settings=Settings(max_memory=5 << 20))
 
 
-def test_progress_bar_runs(shared_data: Path, capsys):
+def test_progress_bar_goes_to_stderr(shared_data: Path, capsys):
     stack = load_mesh_layers(shared_data / "stl" / "ThinWall.stl",
                              settings=Settings(progress=True))
     assert len(stack) == 25
+    assert capsys.readouterr().out == ""  # stdout stays clean (slicer post-processing)
