@@ -25,6 +25,7 @@ __all__ = [
     "MACHINE_KINDS",
     "NOZZLE_KINDS",
     "REGISTRIES",
+    "SIM_CLOCKS",
     "SOURCE_FORMATS",
     "STREAM_MODES",
     "UNITS",
@@ -201,5 +202,9 @@ REGISTRIES: dict[str, Registry] = {
         STREAM_MODES,
         SOURCE_FORMATS,
         UNITS,
+        FIRMWARE_PROFILES,
+        FAULT_KINDS,
+        ENDSTOP_POLICIES,
+        SIM_CLOCKS,
     )
 }

@@ -20,7 +20,9 @@ from printability.errors import PrintabilityError
 __all__ = ["app", "main"]
 
 # Subcommand modules, in help order. Each defines register(app: typer.Typer).
-SUBCOMMANDS: tuple[str, ...] = ()
+SUBCOMMANDS: tuple[str, ...] = (
+    "printability.cli.simulate",
+)
 
 app = typer.Typer(
     name="printability",

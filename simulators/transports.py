@@ -1,0 +1,319 @@
+"""Transports of the virtual printer: a pseudo-terminal, TCP on loopback, and in-process.
+
+All three share :class:`Link`, a thread-safe wrapper of one :class:`Firmware`
+that keeps its clock (simulated or real) and interprets the link markers
+(:class:`Stall`, :class:`Disconnect`) the firmware emits:
+
+- **pty** (:class:`PtyServer`): ``os.openpty``; hosts open the slave path as a
+  serial port. Opening the port resets the board and sends the banner, like
+  an Arduino whose DTR line resets it (the open is seen as the end of the
+  master's hang-up state). A ``disconnect`` fault resets the board and greets
+  again on the same path (the port stays, as with a board behind a USB-UART
+  bridge).
+- **TCP** (:class:`TcpServer`): one client at a time on 127.0.0.1, usable as
+  pyserial's ``socket://127.0.0.1:PORT``; a ``disconnect`` fault closes the
+  connection, the next connection gets the reset banner.
+- **in-process**: the ``printsim://`` pyserial URL (:mod:`simulators.urlhandler`).
+
+Baud pacing (``SimConfig.baud``): incoming bytes reach the firmware 10 bits
+per byte after they were sent (simulated or real time); the servers also
+pace what they write under the real clock.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import socket
+import threading
+import time
+import tty
+from collections.abc import Callable
+
+from printability.errors import PrintabilityOSError
+from simulators.config import SimConfig
+from simulators.firmware import Disconnect, Firmware, Stall
+
+__all__ = ["Link", "PtyServer", "TcpServer"]
+
+
+class Link:
+    """One firmware behind a lock, with its clock and the link markers resolved.
+
+    Parameters
+    ----------
+    config
+        The simulator configuration.
+    """
+
+    def __init__(self, config: SimConfig) -> None:
+        self.config = config
+        self.firmware = Firmware(config)
+        self.lock = threading.RLock()
+        self._t0 = time.monotonic()
+        self._stall_until = 0.0
+        self._held: list[bytes | Stall | Disconnect] = []
+        self.disconnected = False
+        self.on_record: Callable[[], None] | None = None
+
+    @property
+    def real(self) -> bool:
+        return self.config.clock == "real"
+
+    def _now(self) -> float:
+        return time.monotonic() - self._t0
+
+    def _pump(self) -> None:
+        if time.monotonic() < self._stall_until:
+            return  # a stalled firmware does nothing at all
+        if self.real:
+            self.firmware.advance(self._now())
+        else:
+            self.firmware.run_sim()
+
+    def connect(self) -> None:
+        """A host opened the link: reset and greet."""
+        with self.lock:
+            self.disconnected = False
+            self._held.clear()
+            self._stall_until = 0.0
+            self.firmware.connect()
+            self._pump()
+
+    def feed(self, data: bytes) -> None:
+        """Bytes from the host."""
+        with self.lock:
+            if self.disconnected:
+                return
+            self.firmware.receive(data, self._now() if self.real else None)
+            self._pump()
+
+    def read_available(self) -> bytes:
+        """Bytes the firmware has said, up to the next stall or disconnect marker."""
+        with self.lock:
+            self._pump()
+            self._held.extend(self.firmware.take_output())
+            out = bytearray()
+            while self._held and time.monotonic() >= self._stall_until:
+                item = self._held[0]
+                if isinstance(item, bytes):
+                    out += item
+                    self._held.pop(0)
+                elif isinstance(item, Stall):
+                    self._held.pop(0)
+                    self._stall_until = time.monotonic() + item.seconds
+                else:  # Disconnect: what follows belongs to the next connection
+                    if out:
+                        break
+                    self._held.pop(0)
+                    self.disconnected = True
+                    break
+            return bytes(out)
+
+    def wait_time(self) -> float:
+        """Seconds until the firmware next needs the clock (for select timeouts)."""
+        with self.lock:
+            stall = self._stall_until - time.monotonic()
+            if stall > 0:
+                return stall
+            if not self.real:
+                return 0.05
+            return max(0.0, min(self.firmware.next_event() - self._now(), 0.05))
+
+    def close(self) -> None:
+        """Finish: let the planner drain (for the print time) and write the record if asked."""
+        with self.lock:
+            self.firmware.drain()
+            if self.config.record:
+                self.firmware.write_record()
+
+
+class _Pacer:
+    """Holds back writes to ``baud`` bits per second (10 bits per byte), real time."""
+
+    def __init__(self, baud: int | None) -> None:
+        self.baud = baud
+        self.free = 0.0
+
+    def delay(self, n: int) -> float:
+        if not self.baud:
+            return 0.0
+        now = time.monotonic()
+        self.free = max(self.free, now) + n * 10.0 / self.baud
+        return max(0.0, self.free - now)
+
+
+class _Server:
+    def __init__(self, link: Link) -> None:
+        self.link = link
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+
+    def start(self) -> _Server:
+        self._thread = threading.Thread(target=self._guarded, name=type(self).__name__,
+                                        daemon=True)
+        self._thread.start()
+        return self
+
+    def _guarded(self) -> None:
+        try:
+            self._run()
+        except BaseException as exc:  # reported by stop(); a server thread must not vanish
+            self.error = exc
+
+    def _run(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def stop(self, *, timeout: float = 5.0) -> None:
+        """Stop the server thread, drain the planner and write the record if configured."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        self._close()
+        self.link.close()
+
+    def _close(self) -> None:  # pragma: no cover - overridden
+        pass
+
+    def __enter__(self) -> _Server:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class PtyServer(_Server):
+    """The printer on a pseudo-terminal; :attr:`path` is the port hosts open."""
+
+    def __init__(self, link: Link, *, symlink: str | None = None) -> None:
+        super().__init__(link)
+        self.master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line editing: a serial line
+        self.path = os.ttyname(slave)
+        os.close(slave)  # the host's open is then seen as the end of the hang-up
+        os.set_blocking(self.master, False)
+        self.symlink = symlink
+        if symlink:
+            try:
+                if os.path.islink(symlink):
+                    os.unlink(symlink)
+                os.symlink(self.path, symlink)
+            except OSError as exc:
+                os.close(self.master)
+                raise PrintabilityOSError(f"{symlink}: cannot create the port link "
+                                          f"({exc.strerror})") from None
+        self._pacer = _Pacer(link.config.baud if link.real else None)
+
+    def _run(self) -> None:
+        link, poller = self.link, select.poll()
+        poller.register(self.master, select.POLLIN)
+        connected = False
+        while not self._stop.is_set():
+            events = poller.poll(max(link.wait_time(), 0.001) * 1000)
+            hup = any(ev & select.POLLHUP for _, ev in events)
+            if hup:
+                connected = False
+                time.sleep(0.01)  # nobody has the port open: POLLHUP is level-triggered
+                continue
+            if not connected:
+                connected = True
+                link.connect()
+            if any(ev & select.POLLIN for _, ev in events):
+                try:
+                    data = os.read(self.master, 4096)
+                except OSError as exc:
+                    if exc.errno in (errno.EIO, errno.EAGAIN):
+                        continue
+                    raise
+                link.feed(data)
+            out = link.read_available()
+            if link.disconnected:  # the board reset: same port, new banner
+                link.connect()
+                out += link.read_available()
+            if out:
+                self._write(out)
+
+    def _write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view and not self._stop.is_set():
+            try:
+                n = os.write(self.master, view)
+            except BlockingIOError:
+                time.sleep(0.001)
+                continue
+            except OSError as exc:
+                if exc.errno == errno.EIO:
+                    return  # the host closed the port
+                raise
+            view = view[n:]
+            d = self._pacer.delay(n)
+            if d:
+                time.sleep(d)
+
+    def _close(self) -> None:
+        try:
+            os.close(self.master)
+        except OSError:
+            pass
+        if self.symlink and os.path.islink(self.symlink):
+            os.unlink(self.symlink)
+
+
+class TcpServer(_Server):
+    """The printer on a TCP port of 127.0.0.1; :attr:`url` is ``socket://127.0.0.1:PORT``."""
+
+    def __init__(self, link: Link, *, port: int = 0) -> None:
+        super().__init__(link)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self.sock.bind(("127.0.0.1", port))
+        except OSError as exc:
+            self.sock.close()
+            raise PrintabilityOSError(f"cannot listen on 127.0.0.1:{port} "
+                                      f"({exc.strerror})") from None
+        self.sock.listen(1)
+        self.port = self.sock.getsockname()[1]
+        self.url = f"socket://127.0.0.1:{self.port}"
+        self._pacer = _Pacer(link.config.baud if link.real else None)
+
+    def _run(self) -> None:
+        link = self.link
+        while not self._stop.is_set():
+            r, _, _ = select.select([self.sock], [], [], 0.05)
+            if not r:
+                continue
+            conn, _ = self.sock.accept()
+            with conn:
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                link.connect()
+                self._serve(conn)
+
+    def _serve(self, conn: socket.socket) -> None:
+        link = self.link
+        while not self._stop.is_set():
+            r, _, _ = select.select([conn], [], [], max(link.wait_time(), 0.001))
+            if r:
+                try:
+                    data = conn.recv(4096)
+                except OSError:
+                    return
+                if not data:
+                    return  # the host closed the connection
+                link.feed(data)
+            out = link.read_available()
+            if out:
+                try:
+                    conn.sendall(out)
+                except OSError:
+                    return
+                d = self._pacer.delay(len(out))
+                if d:
+                    time.sleep(d)
+            if link.disconnected:
+                return  # drop the connection; the next one is greeted after a reset
+
+    def _close(self) -> None:
+        self.sock.close()
