@@ -219,6 +219,12 @@ def load_mesh(
     n_est = _estimate_triangles(p, kind, size, settings.max_memory)
     check_memory(p, n_est * _BYTES_PER_TRIANGLE, settings.max_memory,
                  f"loading this mesh (about {n_est:,} triangles)")
+    if kind == "3mf":
+        try:
+            import lxml  # noqa: F401  (trimesh's 3MF reader needs it)
+        except ImportError:
+            raise InputError("reading 3MF files needs the package 'lxml'; install it with "
+                             "pip install lxml") from None
     warnings: list[str] = []
     try:
         mesh = trimesh.load(str(p), file_type=kind, force="mesh", process=False)
