@@ -66,6 +66,31 @@ def _entities(layout: Any, depth: int = 0) -> Any:
             yield e
 
 
+def _flatten(e: Any, tol: float) -> np.ndarray:
+    """Points along an entity, every chord within ``tol`` of the true curve.
+
+    Native flattening keeps vertices on the circle/ellipse/spline itself
+    (ezdxf's generic paths would first replace arcs by cubic Béziers, off by
+    2.7e-4 × radius).
+    """
+    kind = e.dxftype()
+    if kind == "LINE":
+        pts = [e.dxf.start, e.dxf.end]
+    elif kind in ("ARC", "CIRCLE"):
+        pts = list(e.flattening(sagitta=tol))
+    elif kind in ("ELLIPSE", "SPLINE"):
+        pts = list(e.flattening(distance=tol))
+    else:  # LWPOLYLINE, 2-D POLYLINE: straight and bulged (arc) segments
+        pts = []
+        for sub in e.virtual_entities():
+            seg = _flatten(sub, tol)
+            if len(pts) and len(seg) and np.allclose(pts[-1], seg[0], rtol=0, atol=1e-12):
+                seg = seg[1:]
+            pts.extend(map(tuple, seg))
+        return np.array(pts, dtype=float).reshape(-1, 2)
+    return np.array([(v[0], v[1]) for v in pts], dtype=float).reshape(-1, 2)
+
+
 def _join(pieces: list[np.ndarray], tol: float) -> tuple[list[np.ndarray], int]:
     """Join open polylines whose ends meet within ``tol`` into closed rings.
 
@@ -159,7 +184,6 @@ def load_dxf_layers(
         Not a DXF file, or no closed outline.
     """
     ezdxf = lazy_import("ezdxf", "dxf", "DXF files")
-    from ezdxf import path as ezpath
     from ezdxf import units as ezunits
 
     p = require_file(path)
@@ -175,7 +199,7 @@ def load_dxf_layers(
         raise FileFormatError(p, f"expected a DXF drawing; found unreadable content ({exc})"
                               ) from None
     except OSError as exc:
-        raise FileFormatError(p, f"cannot read as DXF ({exc})") from None
+        raise FileFormatError(p, f"expected a DXF drawing; {exc}") from None
     warnings: list[str] = []
     code = int(doc.header.get("$INSUNITS", 0) or 0)
     if units is not None:
@@ -211,11 +235,10 @@ def load_dxf_layers(
             skipped["POLYLINE (3-D, mesh or polyface)"] += 1
             continue
         try:
-            pth = ezpath.make_path(e)
-        except (ValueError, TypeError, ZeroDivisionError) as exc:
+            pts = _flatten(e, tol)
+        except (ValueError, TypeError, ZeroDivisionError, ArithmeticError) as exc:
             raise FileFormatError(p, f"cannot read this {kind} ({exc})",
                                   element=f"{kind} handle {e.dxf.handle}") from None
-        pts = np.array([(v.x, v.y) for v in pth.flattening(distance=tol)], dtype=float)
         if len(pts) < 2 or not np.isfinite(pts).all():
             continue
         closed = bool(getattr(e, "closed", False)) or kind in ("CIRCLE",) or (
