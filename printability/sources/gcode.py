@@ -50,7 +50,7 @@ What it cannot know
 * Moves whose start position is unknown, zero-length moves and E-only
   moves lay no bead.
 * Derived widths of very short moves are noisy (E is rounded to 5 decimals
-  by slicers); widths above ``max_width_factor`` × the layer's median width
+  by slicers); widths above ``max_width_factor`` × the file's median derived width
   are clipped to it, and the number clipped is reported in ``meta``;
   derived widths are rounded to 1 µm.
 * Spiral (vase) layers, whose Z rises while extruding, are projected onto
@@ -189,6 +189,11 @@ def layer_regions(
             ),
             3,
         )
+    # Outlier cap for derived widths: a multiple of the file's median derived width
+    # (per-layer medians mislead on layers made mostly of thin gap fill).
+    dw = width[derived]
+    dw = dw[np.isfinite(dw) & (dw > 0)]
+    cap = max_width_factor * float(np.median(dw)) if len(dw) else math.inf
     bounds = np.searchsorted(layer, np.arange(len(g.layers) + 1), side="left")
 
     def one(li: int) -> tuple[int, object, dict]:
@@ -201,8 +206,6 @@ def layer_regions(
         clipped = 0
         if derived[a:b].any():
             facts["width_from"] = f"extrusion ({model} bead)" if derived[a:b].all() else "both"
-            med = float(np.median(w[good])) if good.any() else 0.0
-            cap = max_width_factor * med
             over = good & (w > cap)
             clipped = int(over.sum())
             w = np.where(over, cap, w)
@@ -284,7 +287,8 @@ def load_gcode_layers(
     flavor
         Firmware flavour for E-mode semantics (``"auto"`` reads the file).
     max_width_factor
-        Derived widths above this multiple of the layer's median are clipped.
+        Derived widths above this multiple of the file's median derived width
+        are clipped to it.
 
     Returns
     -------
@@ -350,6 +354,27 @@ def load_gcode_layers(
         "excluded_features": sorted(set(exclude)),
         "gcode_layers": len(g.layers),
         "layers_without_part_beads": empty,
-        "warnings": list(g.warnings),
+        "warnings": [*g.warnings, *_assumptions(g, regions, model, filament_diameter)],
     }
     return LayerStack(tuple(layers), source=str(p), meta=meta)
+
+
+def _assumptions(g: GCodeFile, regions: list, model: str, filament_diameter: float) -> list[str]:
+    """What the reconstruction had to assume for this file, in words."""
+    out = []
+    if g.dialect == "zmoves":
+        out.append("no layer comments: layers taken from the Z of the extrusion moves")
+    if not g.features:
+        out.append(
+            "no feature comments: skirts, brims, supports and purge lines cannot be told "
+            "from the part and are included in the layers"
+        )
+    if any(f.get("width_from", "comments") != "comments" for _, _, f in regions):
+        out.append(
+            f"bead widths derived from E ({model} cross-section, filament diameter "
+            f"{filament_diameter:g} mm) where the file gives no width"
+        )
+    clipped = sum(f.get("widths_clipped", 0) for _, _, f in regions)
+    if clipped:
+        out.append(f"{clipped} derived bead widths clipped as outliers")
+    return out
