@@ -82,7 +82,9 @@ _BYTES_PER_SEGMENT = 400
 _INCH_HINT_MM = 10.0
 _3MF_UNITS_MM = {"micron": 1e-3, "millimeter": 1.0, "centimeter": 10.0, "inch": 25.4,
                  "foot": 304.8, "meter": 1000.0}
-_PLANES_PER_BATCH = 16
+# Planes cut together: at most this many, and at most _SEGMENTS_PER_BATCH segments.
+_PLANES_PER_BATCH = 32
+_SEGMENTS_PER_BATCH = 1_000_000
 
 
 # ---------------------------------------------------------------- checks before loading
@@ -171,10 +173,11 @@ def _estimate_triangles(p: Path, kind: str, size: int, limit: int) -> int:
 
 def _edge_counts(mesh: Any) -> tuple[int, int]:
     """(edges used by one face, edges used by more than two faces)."""
-    e = mesh.edges_sorted
+    e = np.asarray(mesh.edges_sorted, dtype=np.int64)
     if not len(e):
         return 0, 0
-    _, counts = np.unique(e, axis=0, return_counts=True)
+    # One int64 key per undirected edge: a 1-D unique is ~10× faster than unique(axis=0).
+    _, counts = np.unique(e[:, 0] * (int(e.max()) + 1) + e[:, 1], return_counts=True)
     return int((counts == 1).sum()), int((counts > 2).sum())
 
 
@@ -428,16 +431,64 @@ def _section(segs: np.ndarray, area_tol: float) -> list[Any]:
     return [g for g in shapely.get_parts(region) if g.area > area_tol]
 
 
-def _multiplane(mesh: Any, planes: np.ndarray) -> list[np.ndarray]:
-    from trimesh.intersections import mesh_multiplane
+def _cut(vertices: np.ndarray, faces: np.ndarray, fz: tuple[np.ndarray, np.ndarray],
+         planes: np.ndarray) -> list[np.ndarray]:
+    """Section segments (m, 2, 2) of the triangles by each horizontal plane (sorted z).
 
-    lines, tfs, _ = mesh_multiplane(mesh, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], planes)
-    out = []
-    for seg, tf in zip(lines, tfs, strict=True):
-        seg = np.asarray(seg, dtype=float).reshape(-1, 2, 2)
-        # 2-D plane frame → world x, y (identity for a z normal, but do not rely on it).
-        out.append(seg @ tf[:2, :2].T + tf[:2, 3])
+    Only the (triangle, plane) pairs that cross are computed. Each crossing
+    point is computed from its edge's end points in a fixed order (lower vertex
+    index first), so the two triangles sharing an edge give bit-identical
+    points and the loops close exactly. Planes must avoid vertex heights
+    (see :func:`_nudge`).
+    """
+    zmin, zmax = fz
+    lo = np.searchsorted(planes, zmin, side="right")
+    hi = np.searchsorted(planes, zmax, side="left")
+    count = np.maximum(hi - lo, 0)
+    face = np.repeat(np.arange(len(faces)), count)
+    # Plane index of each pair: lo[f], lo[f] + 1, ... for every face f.
+    starts = np.repeat(np.cumsum(count) - count, count)
+    plane = np.repeat(lo, count) + (np.arange(len(face)) - starts)
+    order = np.argsort(plane, kind="stable")
+    face, plane = face[order], plane[order]
+    tri = faces[face]
+    z = planes[plane]
+    above = vertices[tri, 2] > z[:, None]
+    lone_above = above.sum(axis=1) == 1
+    a = np.argmax(above == lone_above[:, None], axis=1)  # the vertex alone on its side
+    rows = np.arange(len(tri))
+    ia, ib, ic = tri[rows, a], tri[rows, (a + 1) % 3], tri[rows, (a + 2) % 3]
+
+    def point(i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        u, w = np.minimum(i, j), np.maximum(i, j)
+        pu, pw = vertices[u], vertices[w]
+        t = (z - pu[:, 2]) / (pw[:, 2] - pu[:, 2])
+        return pu[:, :2] + t[:, None] * (pw[:, :2] - pu[:, :2])
+
+    segs = np.stack([point(ia, ib), point(ia, ic)], axis=1)
+    bounds = np.searchsorted(plane, np.arange(len(planes) + 1))
+    return [segs[bounds[k] : bounds[k + 1]] for k in range(len(planes))]
+
+
+def _batches(planes: np.ndarray, fz: tuple[np.ndarray, np.ndarray]) -> list[tuple[int, int]]:
+    """Plane index ranges [s, e) bounding the segments (memory) and planes per batch."""
+    lo = np.searchsorted(planes, fz[0], side="right")
+    hi = np.searchsorted(planes, fz[1], side="left")
+    per_plane = np.cumsum(np.bincount(lo, minlength=len(planes) + 1)
+                          - np.bincount(hi, minlength=len(planes) + 1))[: len(planes)]
+    out, s, acc = [], 0, 0
+    for k, n in enumerate(per_plane.tolist()):
+        if k > s and (k - s >= _PLANES_PER_BATCH or acc + n > _SEGMENTS_PER_BATCH):
+            out.append((s, k))
+            s, acc = k, 0
+        acc += n
+    out.append((s, len(planes)))
     return out
+
+
+def _face_z(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
+    fz = mesh.vertices[mesh.faces][:, :, 2]
+    return fz.min(axis=1), fz.max(axis=1)
 
 
 def section_region(mesh: Any, z: float, *, settings: Settings = DEFAULT_SETTINGS) -> Any:
@@ -450,7 +501,8 @@ def section_region(mesh: Any, z: float, *, settings: Settings = DEFAULT_SETTINGS
     """
     vz = np.unique(mesh.vertices[:, 2])
     plane = _nudge(np.array([float(z)]), vz, float(mesh.extents.max()))
-    polys = _section(_multiplane(mesh, plane)[0], settings.area_tolerance)
+    segs = _cut(np.asarray(mesh.vertices), np.asarray(mesh.faces), _face_z(mesh), plane)[0]
+    polys = _section(segs, settings.area_tolerance)
     return as_region(shapely.MultiPolygon(polys) if polys else shapely.Polygon(),
                      name=f"section at z={z:g}")
 
@@ -509,9 +561,9 @@ def load_mesh_layers(
         meta["warnings"].append(f"the part ({height:.4g} mm) is thinner than half the first "
                                 f"layer ({flh:g} mm); its one layer is cut at mid-part")
     # Memory: each triangle yields one segment per plane crossing it.
-    fz = mesh.vertices[mesh.faces][:, :, 2]
-    crossings = (np.searchsorted(mids, fz.max(axis=1), side="right")
-                 - np.searchsorted(mids, fz.min(axis=1), side="left"))
+    fz = _face_z(mesh)
+    crossings = (np.searchsorted(mids, fz[1], side="right")
+                 - np.searchsorted(mids, fz[0], side="left"))
     n_seg = int(crossings.sum())
     check_memory(p, n_seg * _BYTES_PER_SEGMENT + len(mesh.faces) * _BYTES_PER_TRIANGLE,
                  settings.max_memory,
@@ -530,9 +582,10 @@ def load_mesh_layers(
         progress.start()
         task = progress.add_task(f"slicing {p.name}", total=len(planes))
     try:
-        for s in range(0, len(planes), _PLANES_PER_BATCH):
-            batch = planes[s : s + _PLANES_PER_BATCH]
-            for j, segs in enumerate(_multiplane(mesh, batch)):
+        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        for s, e in _batches(planes, fz):
+            batch = planes[s:e]
+            for j, segs in enumerate(_cut(vertices, faces, fz, batch)):
                 i = s + j
                 polys = _section(segs, settings.area_tolerance)
                 if not polys:
