@@ -1,8 +1,10 @@
 """Slicer dialects: layer markers, feature types, widths, flavour and slicer name.
 
-Comments are found by a handful of regular expressions run over the whole
-buffer (C speed) and mapped to line numbers with the line table; only
-matches that start a line count (``G1 X1 ;TYPE:x`` is not a feature change).
+The dialect is chosen by counting its layer marker at line starts; then one
+regular expression with a named branch per marker runs over the whole
+buffer (C speed) and its matches are mapped to line numbers with the line
+table; only matches that start a line count (``G1 X1 ;TYPE:x`` is not a
+feature change).
 
 =================  ==============================  =================  =======================
 dialect            layer marker (and Z / height)   feature            width
@@ -39,39 +41,50 @@ __all__ = [
     "scan_comments",
 ]
 
-_NUM = rb"([-+]?(?:\d+\.?\d*|\.\d+))"
+_NUM = rb"[-+]?(?:\d+\.?\d*|\.\d+)"
+_EOL = rb"[ \t]*(?=[\r\n]|\Z)"
 
+# Per dialect: named branches of one regular expression, so that a single pass
+# over the buffer finds every marker (all branches start with ';', which the
+# regex engine skips to quickly). Group names: layer, lz (Z given with the
+# layer marker), z, h, feature, width, wipe_start, wipe_end.
+_BRANCHES = {
+    "prusa": (
+        rb"(?P<layer>;LAYER_CHANGE" + _EOL + rb")",
+        rb";Z:[ \t]*(?P<z>" + _NUM + rb")",
+        rb";HEIGHT:[ \t]*(?P<h>" + _NUM + rb")",
+        rb";TYPE:[ \t]*(?P<feature>[^\r\n]*)",
+        rb";WIDTH:[ \t]*(?P<width>" + _NUM + rb")",
+    ),
+    "bambu": (
+        rb"(?P<layer>; CHANGE_LAYER" + _EOL + rb")",
+        rb"; Z_HEIGHT:[ \t]*(?P<z>" + _NUM + rb")",
+        rb"; LAYER_HEIGHT:[ \t]*(?P<h>" + _NUM + rb")",
+        rb"; FEATURE:[ \t]*(?P<feature>[^\r\n]*)",
+        rb"; LINE_WIDTH:[ \t]*(?P<width>" + _NUM + rb")",
+    ),
+    "cura": (
+        rb"(?P<layer>;LAYER:[ \t]*-?\d+" + _EOL + rb")",
+        rb";TYPE:[ \t]*(?P<feature>[^\r\n]*)",
+    ),
+    "simplify3d": (
+        rb"(?P<layer>; layer \d+), Z = (?P<lz>" + _NUM + rb")",
+        rb"; feature (?P<feature>[^\r\n]*)",
+        rb"; tool H" + _NUM + rb" W(?P<width>" + _NUM + rb")",
+    ),
+}
+_WIPE = (rb"(?P<wipe_start>; ?WIPE_START)", rb"(?P<wipe_end>; ?WIPE_END)")
+_SCAN = {d: re.compile(b"|".join((*br, *_WIPE))) for d, br in _BRANCHES.items()}
+_SCAN["zmoves"] = _SCAN["prusa"]  # feature/width comments may still be there
 
-def _rx(body: bytes) -> re.Pattern[bytes]:
-    # No ^ anchor: a literal prefix lets the regex engine skip ahead fast;
-    # matches that do not start a line are dropped by _lines_of.
-    return re.compile(body, re.M)
-
-
-_LAYER = {
-    "prusa": _rx(rb";LAYER_CHANGE[ \t]*(?=[\r\n]|\Z)"),
-    "bambu": _rx(rb"; CHANGE_LAYER[ \t]*(?=[\r\n]|\Z)"),
-    "cura": _rx(rb";LAYER:[ \t]*(-?\d+)[ \t]*(?=[\r\n]|\Z)"),
-    "simplify3d": _rx(rb"; layer (\d+), Z = " + _NUM),
+# Layer markers at the start of a line, counted with bytes.count (memchr speed)
+# to pick the dialect before the one full scan.
+_MARKERS = {
+    "prusa": b";LAYER_CHANGE",
+    "bambu": b"; CHANGE_LAYER",
+    "cura": b";LAYER:",
+    "simplify3d": b"; layer ",
 }
-_Z = {"prusa": _rx(rb";Z:[ \t]*" + _NUM), "bambu": _rx(rb"; Z_HEIGHT:[ \t]*" + _NUM)}
-_HEIGHT = {
-    "prusa": _rx(rb";HEIGHT:[ \t]*" + _NUM),
-    "bambu": _rx(rb"; LAYER_HEIGHT:[ \t]*" + _NUM),
-}
-_FEATURE = {
-    "prusa": _rx(rb";TYPE:[ \t]*([^\r\n]*)"),
-    "cura": _rx(rb";TYPE:[ \t]*([^\r\n]*)"),
-    "bambu": _rx(rb"; FEATURE:[ \t]*([^\r\n]*)"),
-    "simplify3d": _rx(rb"; feature ([^\r\n]*)"),
-}
-_WIDTH = {
-    "prusa": _rx(rb";WIDTH:[ \t]*" + _NUM),
-    "bambu": _rx(rb"; LINE_WIDTH:[ \t]*" + _NUM),
-    "simplify3d": _rx(rb"; tool H" + _NUM + rb" W" + _NUM),
-}
-_WIPE_START = _rx(rb"; ?WIPE_START")
-_WIPE_END = _rx(rb"; ?WIPE_END")
 _FLAVOR = (
     re.compile(rb";FLAVOR:[ \t]*([A-Za-z0-9_-]+)"),
     re.compile(rb"; gcode_flavor = ([A-Za-z0-9_-]+)"),
@@ -182,19 +195,17 @@ class CommentInfo:
     wipe_end_lines: np.ndarray
 
 
-def _lines_of(pattern: re.Pattern[bytes], data: bytes, line_start: np.ndarray):
-    ms = list(pattern.finditer(data))
-    pos = np.fromiter((m.start() for m in ms), np.int64, len(ms))
-    lines = np.searchsorted(line_start, pos, side="right") - 1
-    at_start = line_start[lines] == pos
-    if not at_start.all():
-        lines = lines[at_start]
-        ms = [m for m, keep in zip(ms, at_start.tolist(), strict=True) if keep]
-    return lines, ms
-
-
 def _decode(b: bytes) -> str:
     return b.decode("utf-8", errors="replace").strip()
+
+
+def _pick_dialect(data: bytes) -> str:
+    best, best_n = "zmoves", 0
+    for d, marker in _MARKERS.items():
+        n = data.count(b"\n" + marker) + data.count(b"\r" + marker) + data.startswith(marker)
+        if n > best_n:
+            best, best_n = d, n
+    return best
 
 
 def scan_comments(data: bytes, line_start: np.ndarray) -> CommentInfo:
@@ -213,42 +224,46 @@ def scan_comments(data: bytes, line_start: np.ndarray) -> CommentInfo:
             flavor = m.group(1).decode("ascii", "replace").lower()
             break
 
-    counts = {d: _lines_of(rx, data, line_start) for d, rx in _LAYER.items()}
-    dialect = max(counts, key=lambda d: len(counts[d][1]))
-    if len(counts[dialect][1]) == 0:
+    dialect = _pick_dialect(data)
+    found: dict[str, list[tuple[int, bytes | None]]] = {
+        k: [] for k in ("layer", "lz", "z", "h", "feature", "width", "wipe_start", "wipe_end")
+    }
+    matches = list(_SCAN[dialect].finditer(data))
+    pos = np.fromiter((m.start() for m in matches), np.int64, len(matches))
+    lines = np.searchsorted(line_start, pos, side="right") - 1
+    at_start = (line_start[lines] == pos).tolist() if len(pos) else []
+    for m, li, ok in zip(matches, lines.tolist(), at_start, strict=True):
+        if not ok:
+            continue  # a marker inside another line's comment does not count
+        kind = m.lastgroup
+        if kind == "lz":  # Simplify3D: "; layer 3, Z = 0.6" (lz closes last)
+            found["lz"].append((li, m.group("lz")))
+            kind = "layer"
+        found[kind].append((li, None if kind in ("layer", "wipe_start", "wipe_end")
+                            else m.group(kind)))
+
+    def line_array(key: str) -> np.ndarray:
+        return np.array([li for li, _ in found[key]], dtype=np.int64)
+
+    layer_lines = line_array("layer")
+    if len(layer_lines) == 0:
         dialect = "zmoves"
-        layer_lines = np.zeros(0, np.int64)
-        layer_z = np.zeros(0)
-        layer_h = np.zeros(0)
-    else:
-        layer_lines, ms = counts[dialect]
-        n = len(layer_lines)
-        layer_z = np.full(n, np.nan)
-        layer_h = np.full(n, np.nan)
-        if dialect == "simplify3d":
-            layer_z[:] = [float(m.group(2)) for m in ms]
-        if dialect in _Z:
-            for arr, rxs in ((layer_z, _Z), (layer_h, _HEIGHT)):
-                zl, zm = _lines_of(rxs[dialect], data, line_start)
-                owner = np.searchsorted(layer_lines, zl, side="right") - 1
-                for o, m in zip(owner[::-1], zm[::-1], strict=True):  # first one wins
-                    if o >= 0:
-                        arr[o] = float(m.group(1))
-    fam = "prusa" if dialect == "zmoves" else dialect
-    feat_rx = _FEATURE.get(fam, _FEATURE["prusa"])
-    feature_lines, fm = _lines_of(feat_rx, data, line_start)
+    n = len(layer_lines)
+    layer_z = np.full(n, np.nan)
+    layer_h = np.full(n, np.nan)
+    for li, v in found["lz"]:
+        layer_z[np.searchsorted(layer_lines, li)] = float(v)
+    for arr, key in ((layer_z, "z"), (layer_h, "h")):
+        if not found[key] or n == 0:
+            continue
+        owner = np.searchsorted(layer_lines, line_array(key), side="right") - 1
+        for o, (_, v) in zip(owner[::-1].tolist(), found[key][::-1], strict=True):
+            if o >= 0:  # iterating backwards: the first value after a marker wins
+                arr[o] = float(v)
     names: dict[str, int] = {}
-    ids = np.empty(len(fm), np.int64)
-    for k, m in enumerate(fm):
-        ids[k] = names.setdefault(_decode(m.group(1)), len(names))
-    width_lines = np.zeros(0, np.int64)
-    width_values = np.zeros(0)
-    if fam in _WIDTH:
-        width_lines, wm = _lines_of(_WIDTH[fam], data, line_start)
-        grp = 2 if fam == "simplify3d" else 1
-        width_values = np.array([float(m.group(grp)) for m in wm], dtype=float)
-    ws, _ = _lines_of(_WIPE_START, data, line_start)
-    we, _ = _lines_of(_WIPE_END, data, line_start)
+    ids = np.array(
+        [names.setdefault(_decode(v), len(names)) for _, v in found["feature"]], dtype=np.int64
+    )
     return CommentInfo(
         dialect=dialect,
         slicer=slicer,
@@ -257,11 +272,11 @@ def scan_comments(data: bytes, line_start: np.ndarray) -> CommentInfo:
         layer_lines=layer_lines,
         layer_z=layer_z,
         layer_height=layer_h,
-        feature_lines=feature_lines,
+        feature_lines=line_array("feature"),
         feature_ids=ids,
         feature_names=tuple(names),
-        width_lines=width_lines,
-        width_values=width_values,
-        wipe_start_lines=ws,
-        wipe_end_lines=we,
+        width_lines=line_array("width"),
+        width_values=np.array([float(v) for _, v in found["width"]], dtype=float),
+        wipe_start_lines=line_array("wipe_start"),
+        wipe_end_lines=line_array("wipe_end"),
     )
