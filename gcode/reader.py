@@ -42,7 +42,7 @@ from gcode._machine import ERR_MESSAGES, run_machine
 from gcode.arcs import linearise
 from gcode.dialects import CommentInfo, feature_category, scan_comments
 from gcode.line import ParsedLine, parse_line
-from printability.errors import FileFormatError, PrintabilityOSError, ResourceError
+from printability.errors import FileFormatError, InputError, PrintabilityOSError, ResourceError
 from printability.options import FLAVORS
 from printability.settings import DEFAULT_SETTINGS, Settings
 
@@ -226,7 +226,7 @@ def parse_gcode(
         off in the middle of a move, arcs that cannot be interpreted.
     """
     if engine not in ("numba", "python"):
-        raise FileFormatError(path, f"unknown tokeniser engine {engine!r}; use numba or python")
+        raise InputError(f"unknown tokeniser engine {engine!r}; expected numba or python")
     _check_memory(len(data), path, settings)
     if data.startswith(_BGCODE_MAGIC):
         raise FileFormatError(

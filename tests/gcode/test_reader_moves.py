@@ -398,3 +398,26 @@ def test_bambu_markers_with_crlf():
     # a marker inside another line's comment is not a layer change
     g2 = parse_gcode(text.replace("G1 X5 E1", "G1 X5 E1 ; CHANGE_LAYER").encode())
     assert len(g2.layers) == 2
+
+
+@pytest.mark.parametrize("name", ["orcaslicer_2.3.0b2_klipper_arcs.gcode",
+                                  "slic3rpe_1.33_arcwelder_benchy.gcode"])
+def test_interpreted_engine_gives_the_same_file(gfiles, name):
+    g = gfiles[name]
+    head = b"".join(g.data.splitlines(keepends=True)[:3000])
+    a = parse_gcode(head, engine="numba")
+    b = parse_gcode(head, engine="python")
+    for table in ("lines", "words", "moves", "layers"):
+        x, y = getattr(a, table), getattr(b, table)
+        for f in x.dtype.names:
+            assert np.array_equal(x[f], y[f], equal_nan=x[f].dtype.kind == "f"), (table, f)
+
+
+def test_line_layer_column(gfiles):
+    g = gfiles["prusaslicer_2.7.4_marlin2_arcs.gcode"]
+    L = g.layers
+    assert (g.lines["layer"][: L["line"][0]] == -1).all()
+    for k in (0, 50, len(L) - 1):
+        assert g.lines["layer"][L["line"][k]] == k
+        assert g.line(int(L["line"][k])).startswith(b";LAYER_CHANGE")
+    assert (g.moves["layer"][L["first_move"][5] : L["end_move"][5]] == 5).all()
