@@ -58,6 +58,9 @@ KILLED = "Error:Printer halted. kill() called!"
 COLD = "echo: cold extrusion prevented"
 
 _EOL = re.compile(rb"[\r\n]")
+# Under the simulated clock a wait of years (G4 S1e9) would print a busy line every 2 s;
+# after this many keepalives of one command the clock jumps straight to its end.
+_SIM_KEEPALIVE_CAP = 1000
 _N_PREFIX = re.compile(r"N\s*(-?\d+)\s*")
 
 # Commands the firmware accepts and (for the simulation) need no effect.
@@ -194,6 +197,7 @@ class Firmware:
         self._blocked_since: float | None = None
         self._keepalive_at = math.inf
         self._keepalive_kind = "busy"
+        self._keepalives = 0
         self._autoreport = 0.0
         self._autoreport_at = math.inf
         self._storm = 0
@@ -261,12 +265,13 @@ class Firmware:
                 times.append(self._wait[1])
             elif self._planner:
                 times.append(self._exec_end)
-            times.append(self._keepalive_at)
+            if self._keepalives < _SIM_KEEPALIVE_CAP:
+                times.append(self._keepalive_at)
         elif self._queue and self._planner:  # queued command waiting for the planner
             times.append(self._exec_end)
         return min(times) if times else math.inf
 
-    def run_sim(self, *, limit: float = 1e9) -> None:
+    def run_sim(self, *, limit: float = math.inf) -> None:
         """Simulated clock: process everything that needs no new input from the host."""
         while True:
             self.advance(self.now)
@@ -319,6 +324,7 @@ class Firmware:
 
     def _periodic(self) -> None:
         if self._active is not None and self.now >= self._keepalive_at:
+            self._keepalives += 1
             if self._keepalive_kind == "busy":
                 self._emit(BUSY)
                 self.stats.busy_sent += 1
@@ -338,6 +344,7 @@ class Firmware:
             end = m.start() if m else len(self._ring)
             chunk = self._ring[:end]
             del self._ring[:end + (1 if m else 0)]
+            progressed = True
             if not self._in_comment:
                 semi = chunk.find(b";")
                 if semi >= 0:
@@ -513,6 +520,7 @@ class Firmware:
             self._active = None
             self._wait = None
             self._keepalive_at = math.inf
+            self._keepalives = 0
             self._ok(self._queue[0])  # B counts the finished command, as in Marlin
             self._queue.popleft()
             progressed = True
@@ -565,7 +573,7 @@ class Firmware:
                     cold = True
                     b.e1 = b.e0
                 yield ("slot",)
-                if b.e1 > b.e0 + 1e-12 and (b.end[0] != b.start[0] or b.end[1] != b.start[1]):
+                if b.e1 > b.e0 + 1e-12:  # material leaves the orifice, moving or not
                     self.deposition.add(b.start, b.end, b.e1 - b.e0, len(self.executed) - 1)
                 self._push_block(b)
             if cold:
