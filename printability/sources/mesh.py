@@ -314,8 +314,12 @@ def load_mesh(
         if longest < _INCH_HINT_MM:
             dims = " × ".join(f"{v:.4g}" for v in mesh.extents)
             as_in = " × ".join(f"{v * 25.4:.4g}" for v in mesh.extents)
-            warnings.append(f"the part measures only {dims} mm read as mm; STL has no units: "
-                            f"if it was drawn in inches ({as_in} mm) pass units='in'")
+            hint = (f"the part measures only {dims} mm read as mm; {kind.upper()} has no "
+                    f"units: if it was drawn in inches ({as_in} mm) pass units='in'")
+            if longest < 1.0:
+                as_m = " × ".join(f"{v * 1000:.4g}" for v in mesh.extents)
+                hint += f", in metres ({as_m} mm) units='m'"
+            warnings.append(hint)
     meta = {
         "format": kind,
         "units": file_units or (units or "mm"),
