@@ -1,0 +1,631 @@
+"""Choose the nozzle orientation of every extruding move (MMC-safe).
+
+A move from p₀ to p₁ at the constant orientation φ deposits inside the swept
+footprint ``[p₀, p₁] ⊕ R(φ)A⁰``. For a convex orifice that is the convex hull
+of the footprint placed at both ends; a non-convex polygon is split into
+triangles and each is swept. The move is *admissible* at φ when that swept
+region lies inside the layer target G grown by ``tolerance`` (equivalently:
+the segment lies in the motion restriction P_φ = G ⊖ R(φ)A⁰, up to the
+tolerance). Footprints are tested with their *outer* polygonal
+approximation, so curved orifices are never under-estimated.
+
+Search order, cheapest first (shapely's vectorised predicates on a prepared
+G):
+
+1. the *preferred* orientation of each move: the one whose bead width
+   (:meth:`Nozzle.bead_width`) is closest to the planned width, among the
+   equivalent solutions the one nearest the previous move's (turn least);
+2. for the moves that do not fit, other orientations in rounds of
+   increasing cost (width error first, then the turn);
+3. for the moves that still do not fit anywhere, the move is cut into pieces
+   no longer than ``split_length`` and each piece is searched alone; pieces
+   that fit nowhere are dropped, and reported.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from printability.errors import InputError
+from printability.geometry import polygons_of
+from printability.machine import Machine
+from printability.nozzle import Nozzle
+
+__all__ = [
+    "ConvexPiece",
+    "OrientationOptions",
+    "OrientedPiece",
+    "Plan",
+    "candidate_orientations",
+    "convex_pieces",
+    "fits",
+    "plan_orientations",
+    "swept_footprints",
+    "width_table",
+]
+
+
+@dataclass(frozen=True)
+class OrientationOptions:
+    """Tolerances of the orientation search.
+
+    Attributes
+    ----------
+    tolerance
+        How far (mm) a swept footprint may stand outside the target: covers
+        the rounding of the slicer's coordinates and of the polygonal arcs.
+    quad_segs
+        Segments per quarter of a curved orifice (outer approximation).
+    search_step
+        Angular step of the search when the preferred orientation fails, degrees.
+    width_slack
+        Orientations whose bead width is within this (mm) of the best
+        achievable one are ranked by turn only.
+    split_length
+        Longest piece a move that fits nowhere is cut into, mm (None: a
+        quarter of the nozzle radius, at least 0.05 mm).
+    fold_max
+        Largest turn (degrees) made during an extruding move rather than
+        standing still.
+    """
+
+    tolerance: float = 1e-3
+    quad_segs: int = 16
+    search_step: float = 5.0
+    width_slack: float = 0.02
+    split_length: float | None = None
+    fold_max: float = 20.0
+
+
+@dataclass(frozen=True)
+class OrientedPiece:
+    """One printable piece of a move: from ``t0`` to ``t1`` (fractions of the move) at ``angle``."""
+
+    t0: float
+    t1: float
+    angle: float
+
+
+@dataclass(frozen=True, eq=False)
+class Plan:
+    """The orientation of every move of one layer.
+
+    Attributes
+    ----------
+    angle
+        Orientation per move, degrees (NaN where the whole move is dropped or split).
+    pieces
+        For split moves (index → printable pieces, possibly empty = dropped).
+    width
+        Bead width laid at the chosen orientation, mm (NaN if dropped/split).
+    fold
+        (n,) True where the turn from the previous move's orientation is made
+        during the move (checked with the turning footprint).
+    """
+
+    angle: np.ndarray
+    width: np.ndarray
+    pieces: dict[int, list[OrientedPiece]] = field(default_factory=dict)
+    fold: np.ndarray | None = None
+
+    @property
+    def split_moves(self) -> int:
+        return sum(1 for p in self.pieces.values() if p)
+
+    @property
+    def dropped_moves(self) -> int:
+        return sum(1 for p in self.pieces.values() if not p)
+
+    def dropped_length(self, lengths: np.ndarray) -> float:
+        """Length of the dropped parts of the moves, mm."""
+        total = 0.0
+        for i, pieces in self.pieces.items():
+            kept = sum(p.t1 - p.t0 for p in pieces)
+            total += float(lengths[i]) * max(0.0, 1.0 - kept)
+        return total
+
+
+@dataclass(frozen=True)
+class ConvexPiece:
+    """A convex part of an orifice in the nozzle frame (mounting angle included).
+
+    ``kind`` is ``"ellipse"`` (circles too), ``"rect"`` or ``"poly"``; ``a``,
+    ``b`` semi-axes (mm), ``center`` (mm) and ``rotation`` (degrees) place
+    the first two; ``vertices`` (k, 2) the last.
+    """
+
+    kind: str
+    a: float = 0.0
+    b: float = 0.0
+    center: tuple[float, float] = (0.0, 0.0)
+    rotation: float = 0.0
+    vertices: np.ndarray | None = None
+
+    def support(self, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
+        """Support function h(u) = max over the piece of u·x, for unit vectors (ux, uy)."""
+        cx, cy = self.center
+        base = ux * cx + uy * cy
+        if self.kind in ("ellipse", "rect"):
+            r = math.radians(self.rotation)
+            c, s = math.cos(r), math.sin(r)
+            vx = c * ux + s * uy  # u in the orifice's own axes
+            vy = -s * ux + c * uy
+            if self.kind == "ellipse":
+                return base + np.sqrt((self.a * vx) ** 2 + (self.b * vy) ** 2)
+            return base + self.a * np.abs(vx) + self.b * np.abs(vy)
+        v = self.vertices
+        return np.max(ux[..., None] * v[:, 0] + uy[..., None] * v[:, 1], axis=-1)
+
+
+def convex_pieces(nozzle: Nozzle, *, quad_segs: int = 16) -> list[ConvexPiece]:
+    """Convex pieces covering the orifices of a nozzle, exactly.
+
+    Circles, ellipses and rectangles are one piece each (their support
+    function is exact); a convex polygon is one piece; a non-convex polygon
+    is triangulated (constrained Delaunay). ``quad_segs`` is unused (kept for
+    symmetry with the outline functions).
+    """
+    del quad_segs
+    out: list[ConvexPiece] = []
+    m = nozzle.mount_angle
+    rm = math.radians(m)
+    cm, sm = math.cos(rm), math.sin(rm)
+    for f in nozzle.footprints:
+        cx, cy = f.center
+        center = (cm * cx - sm * cy, sm * cx + cm * cy)
+        if f.kind in ("circle", "ellipse"):
+            out.append(ConvexPiece("ellipse", f.a, f.b, center, f.rotation + m))
+            continue
+        if f.kind == "rect":
+            out.append(ConvexPiece("rect", f.a, f.b, center, f.rotation + m))
+            continue
+        poly = f.polygon()
+        if m:
+            poly = shapely.affinity.rotate(poly, m, origin=(0.0, 0.0))
+        if poly.convex_hull.area - poly.area <= 1e-12 * max(poly.area, 1.0):
+            out.append(ConvexPiece("poly", vertices=np.asarray(poly.exterior.coords)[:-1]))
+            continue
+        for tri in polygons_of(shapely.constrained_delaunay_triangles(poly)):
+            out.append(ConvexPiece("poly", vertices=np.asarray(tri.exterior.coords)[:-1]))
+    return out
+
+
+def swept_footprints(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.ndarray,
+                     *, angle_end: np.ndarray | None = None, scale: np.ndarray | None = None,
+                     directions: int = 64) -> np.ndarray:
+    """Outer polygons of a convex piece swept from p0 to p1.
+
+    The piece is turned by ``angle`` (and, when ``angle_end`` is given, turns
+    linearly to it during the move) and scaled by ``scale`` about the nozzle
+    origin. The polygon is the intersection of the ``directions`` half-planes
+    tangent to the swept set, so it *contains* the swept set (it exceeds it by
+    at most ρ·(1/cos(π/directions) − 1) for a curved piece at radius ρ: 0.05 %).
+    A piece turning from φa to φb is bounded by k·hull(R(φa)A ∪ R(φb)A),
+    k = 1/cos(|φb − φa|/2): every point of a turning orifice stays on an arc
+    whose chord lies in that hull and the arc bulges outwards by at most that
+    factor.
+
+    Returns
+    -------
+    ndarray of shapely Polygons, shape (n,).
+    """
+    n = len(p0)
+    # The directions are turned so that two of them are normal to the move:
+    # the long sides of the swept set are then exact, not cut by a spike.
+    normal = np.arctan2(p1[:, 0] - p0[:, 0], -(p1[:, 1] - p0[:, 1]))
+    t = normal[:, None] + np.arange(directions)[None, :] * (2 * math.pi / directions)
+    cu, su = np.cos(t), np.sin(t)
+
+    def h_at(phi: np.ndarray) -> np.ndarray:
+        r = np.deg2rad(phi)[:, None]
+        c, s = np.cos(r), np.sin(r)
+        # u expressed in the nozzle frame: R(-phi) u
+        return piece.support(c * cu + s * su, -s * cu + c * su)
+
+    h = h_at(np.asarray(angle, dtype=float))
+    if angle_end is not None:
+        d = np.abs(np.asarray(angle_end, dtype=float) - angle)
+        h = np.maximum(h, h_at(np.asarray(angle_end, dtype=float)))
+        k = 1.0 / np.cos(np.deg2rad(np.minimum(d, 120.0)) / 2.0)
+        h = h * k[:, None]
+    if scale is not None:
+        h = h * np.asarray(scale, dtype=float)[:, None]
+    h = h + np.maximum(cu * p0[:, :1] + su * p0[:, 1:2], cu * p1[:, :1] + su * p1[:, 1:2])
+    hn = np.roll(h, -1, axis=1)
+    cn, sn = np.roll(cu, -1, axis=1), np.roll(su, -1, axis=1)
+    det = math.sin(2 * math.pi / directions)
+    x = (h * sn - hn * su) / det
+    y = (cu * hn - cn * h) / det
+    ring = np.stack([x, y], axis=-1)
+    ring = np.concatenate([ring, ring[:, :1]], axis=1)
+    return shapely.polygons(ring.reshape(n, directions + 1, 2))
+
+
+def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1: np.ndarray,
+         angle: np.ndarray, *, angle_end: np.ndarray | None = None,
+         scale: np.ndarray | None = None) -> np.ndarray:
+    """Whether each move's swept footprint lies inside ``target`` (prepared, grown).
+
+    Returns a boolean array of shape (n,).
+    """
+    n = len(p0)
+    ok = np.ones(n, dtype=bool)
+    if n == 0:
+        return ok
+    for piece in pieces:
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
+            break
+        polys = swept_footprints(piece, p0[idx], p1[idx], np.asarray(angle)[idx],
+                                 angle_end=None if angle_end is None else angle_end[idx],
+                                 scale=None if scale is None else scale[idx])
+        ok[idx] = shapely.covers(target, polys)
+    return ok
+
+
+def width_table(nozzle: Nozzle, *, step: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Bead width as a function of the orientation relative to the motion.
+
+    Returns
+    -------
+    beta : ndarray
+        Orientation minus direction of motion, degrees in [0, 360).
+    width : ndarray
+        Bead width, mm (``bead_width(0, beta)``; the width only depends on
+        the difference).
+    """
+    beta = np.arange(0.0, 360.0, step)
+    width = np.array([nozzle.bead_width(0.0, b) for b in beta])
+    return beta, width
+
+
+def candidate_orientations(machine: Machine, nozzle: Nozzle, *, step: float) -> np.ndarray:
+    """Orientations the machine can take, sampled every ``step`` degrees (one period)."""
+    period = nozzle.symmetry_period
+    if machine.kind != "ttr" or period == 0.0:
+        return np.array([0.0])
+    lo, hi = machine.angle_min, machine.angle_max
+    span = min(hi - lo, period if period else 360.0)
+    n = max(1, math.ceil(span / step - 1e-9))
+    full = span >= (period or 360.0) - 1e-9
+    return lo + np.arange(n + (0 if full else 1)) * (span / n)
+
+
+def _reachable(phi: np.ndarray, machine: Machine, period: float) -> np.ndarray:
+    """Whether some equivalent of each orientation lies within the axis limits."""
+    if machine.kind != "ttr":
+        return np.isclose(np.mod(phi + 1e-9, period or 360.0), 1e-9, atol=1e-6)
+    lo, hi = machine.angle_min, machine.angle_max
+    if hi - lo >= period - 1e-9:
+        return np.ones(phi.shape, dtype=bool)
+    k = np.ceil((lo - phi) / period - 1e-12)
+    return phi + k * period <= hi + 1e-9
+
+
+def _nearest(phi: float, prev: float, period: float) -> float:
+    return phi + period * round((prev - phi) / period)
+
+
+def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: Nozzle,
+                           machine: Machine, *, previous: float = 0.0,
+                           return_candidates: bool = False):
+    """Per move, the orientation laying the planned width, turning least.
+
+    The bead width only depends on the orientation relative to the motion
+    and repeats every 180°; of the (usually two) relative orientations that
+    give the width closest to the plan, the one whose equivalent is nearest
+    the previous move's orientation is taken. NaN widths prefer moving along
+    the nozzle's narrowest extent.
+    """
+    n = len(direction)
+    period = nozzle.symmetry_period
+    per = period if period else 360.0
+    beta = np.arange(0.0, 180.0, 0.5)
+    wtab = np.array([nozzle.bead_width(0.0, b) for b in beta])
+    w = np.where(np.isfinite(widths), widths, wtab.min())
+    b1 = np.empty(n)
+    b2 = np.empty(n)
+    for lo in range(0, n, 8192):
+        err = np.abs(wtab[None, :] - w[lo:lo + 8192, None])
+        j1 = np.argmin(err, axis=1)
+        e1 = err[np.arange(len(j1)), j1]
+        dist = np.abs((beta[None, :] - beta[j1][:, None] + 90.0) % 180.0 - 90.0)
+        err2 = np.where(dist > 2.0, err, np.inf)
+        j2 = np.argmin(err2, axis=1)
+        e2 = err2[np.arange(len(j2)), j2]
+        b1[lo:lo + 8192] = beta[j1]
+        b2[lo:lo + 8192] = np.where(e2 <= e1 + 1e-4, beta[j2], beta[j1])
+    # candidates: direction + b (+180 is the same width), unwrap sequentially
+    c1 = (direction + b1).tolist()
+    c2 = (direction + b2).tolist()
+    reach = machine.kind == "ttr" and machine.angle_max - machine.angle_min < per - 1e-9
+    out = np.empty(n)
+    prev = previous
+    for i in range(n):
+        best = None
+        for c in (c1[i], c2[i], c1[i] + 180.0, c2[i] + 180.0):
+            if reach and not _reachable(np.array([c]), machine, per)[0]:
+                continue
+            near = c + per * round((prev - c) / per)
+            if best is None or abs(near - prev) < abs(best - prev):
+                best = near
+        if best is None:  # nothing reachable lays the width: closest reachable orientation
+            best = float(np.clip(prev, machine.angle_min, machine.angle_max))
+        out[i] = best
+        prev = best
+    if return_candidates:
+        return out, np.asarray(c1), np.asarray(c2)
+    return out
+
+
+def plan_orientations(
+    p0: np.ndarray,
+    p1: np.ndarray,
+    widths: np.ndarray,
+    target: BaseGeometry,
+    nozzle: Nozzle,
+    machine: Machine,
+    *,
+    options: OrientationOptions = OrientationOptions(),
+    previous: float = 0.0,
+    prepared_target: BaseGeometry | None = None,
+    chained: np.ndarray | None = None,
+) -> Plan:
+    """Choose an orientation for every extruding move of one layer.
+
+    Parameters
+    ----------
+    p0, p1
+        (n, 2) start and end of each move, in print order, mm.
+    widths
+        (n,) bead width the slicer planned, mm (NaN: no preference).
+    target
+        The layer target G (shapely).
+    nozzle, machine
+        What prints it. An XY machine or a round nozzle never turns: the
+        only orientation is 0. A round nozzle lays the planned width when the
+        slicer planned a bead narrower than the orifice (bridges, gap fill:
+        the slicer's own model of its nozzle), so its footprint is the disk
+        of that width.
+    options
+        Tolerances (see :class:`OrientationOptions`).
+    previous
+        Orientation before the first move, degrees.
+    prepared_target
+        G already grown by the tolerance and prepared (to share between calls).
+    chained
+        (n,) True where a move starts where the previous one ended, without
+        anything in between: the turn to its orientation may then be made
+        *during* it when the footprint turning along the move still fits
+        (``Plan.fold``); otherwise the nozzle turns standing still, not
+        extruding.
+
+    Returns
+    -------
+    Plan
+    """
+    p0 = np.asarray(p0, dtype=float).reshape(-1, 2)
+    p1 = np.asarray(p1, dtype=float).reshape(-1, 2)
+    n = len(p0)
+    widths = np.broadcast_to(np.asarray(widths, dtype=float), (n,))
+    if prepared_target is None:
+        prepared_target = grown_target(target, options.tolerance)
+    pieces = convex_pieces(nozzle)
+    period = nozzle.symmetry_period
+    turns = machine.kind == "ttr" and period != 0.0
+    per = period if turns else 360.0
+    direction = np.degrees(np.arctan2(p1[:, 1] - p0[:, 1], p1[:, 0] - p0[:, 0]))
+    scale = None
+    if nozzle.is_round:
+        d = 2.0 * nozzle.footprints[0].a
+        scale = np.where(np.isfinite(widths), np.minimum(1.0, widths / d), 1.0)
+    if turns:
+        angle, c1, c2 = preferred_orientations(direction, widths, nozzle, machine,
+                                               previous=previous, return_candidates=True)
+    else:
+        angle = np.zeros(n)
+
+    ok = fits(prepared_target, pieces, p0, p1, angle, scale=scale)
+    result_pieces: dict[int, list[OrientedPiece]] = {}
+    bad = np.flatnonzero(~ok)
+    beta, wtab = width_table(nozzle)
+    if bad.size:
+        cands = candidate_orientations(machine, nozzle, step=options.search_step) if turns \
+            else np.array([0.0])
+        chain_prev = np.concatenate([[previous], angle[:-1]])
+        badset = set(bad.tolist())
+        for i in bad.tolist():
+            # the previous move's final orientation (it may itself have been searched)
+            prev_i = float(angle[i - 1]) if (i > 0 and i - 1 in badset
+                                             and np.isfinite(angle[i - 1])) else \
+                float(chain_prev[i]) if np.isfinite(chain_prev[i]) else previous
+            best = _search_one(prepared_target, pieces, p0[i], p1[i], float(direction[i]),
+                               float(widths[i]), prev_i, cands, beta, wtab, per, options,
+                               None if scale is None else float(scale[i]))
+            if best is not None:
+                angle[i] = best
+                continue
+            result_pieces[int(i)] = _split(prepared_target, pieces, p0[i], p1[i], direction[i],
+                                           widths[i], prev_i, cands, beta, wtab, per,
+                                           nozzle, options,
+                                           None if scale is None else scale[i])
+            angle[i] = np.nan
+    if turns and n > 1:
+        angle = _smooth(angle, bad, c1, c2, per, previous, prepared_target, pieces, p0, p1,
+                        scale, machine)
+    fold = np.zeros(n, dtype=bool)
+    if turns and chained is not None and n > 1:
+        prev_a = np.concatenate([[np.nan], angle[:-1]])
+        step = np.abs(angle - prev_a)
+        cand = np.flatnonzero(np.asarray(chained, bool) & np.isfinite(step) & (step > 1e-9)
+                              & (step <= options.fold_max))
+        if cand.size:
+            fold[cand] = fits(prepared_target, pieces, p0[cand], p1[cand], prev_a[cand],
+                              angle_end=angle[cand])
+    width = np.full(n, np.nan)
+    good = ~np.isnan(angle)
+    rel = np.mod(angle[good] - direction[good], 360.0)
+    width[good] = np.interp(rel, np.append(beta, 360.0), np.append(wtab, wtab[0]))
+    return Plan(angle=angle, width=width, pieces=result_pieces, fold=fold)
+
+
+def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scale, machine):
+    """Second pass: turn least given the orientations the search replaced.
+
+    The preferred orientations were chained assuming every move fits; where
+    the search replaced one, the next moves may now be nearer to the other
+    solution of the same width. Proposals are re-tested together and kept
+    only where they fit; an equivalent orientation (a multiple of the period
+    away) needs no test.
+    """
+    n = len(angle)
+    searched = set(int(i) for i in searched)
+    reach = machine.kind == "ttr" and machine.angle_max - machine.angle_min < per - 1e-9
+    prop = angle.copy()
+    prev = previous
+    lst = angle.tolist()
+    a1, a2 = c1.tolist(), c2.tolist()
+    for i in range(n):
+        a = lst[i]
+        if a != a:  # NaN: split or dropped move
+            continue
+        if i in searched or reach:
+            best = a + per * round((prev - a) / per)
+        else:
+            best = None
+            for c in (a1[i], a2[i]):
+                near = c + per * round((prev - c) / per)
+                if best is None or abs(near - prev) < abs(best - prev):
+                    best = near
+        prop[i] = best
+        prev = best
+    diff = np.abs((prop - angle + per / 2) % per - per / 2)
+    test = np.flatnonzero(np.isfinite(prop) & (diff > 1e-6))
+    out = np.where(np.isfinite(prop), prop, angle)
+    if test.size:
+        ok = fits(target, pieces, p0[test], p1[test], prop[test],
+                  scale=None if scale is None else scale[test])
+        keep = test[~ok]
+        # a rejected proposal keeps its old orientation, unwrapped near its neighbour
+        out[keep] = angle[keep]
+    return out
+
+
+def grown_target(target: BaseGeometry, tolerance: float) -> BaseGeometry:
+    """G grown by ``tolerance`` (mm) and prepared for repeated predicates."""
+    if target is None or target.is_empty:
+        raise InputError("the layer target is empty: there is nothing a move could fit in")
+    g = target.buffer(tolerance, quad_segs=8) if tolerance > 0 else target
+    shapely.prepare(g)
+    return g
+
+
+def _costs(direction, widths, prev, cands, beta, wtab, per, options):
+    """(k, c) ranking keys of each candidate orientation for each move."""
+    phis = direction[:, None] * 0 + cands[None, :]
+    rel = np.mod(phis - direction[:, None], 360.0)
+    w = np.interp(rel, np.append(beta, 360.0), np.append(wtab, wtab[0]))
+    werr = np.abs(w - np.where(np.isnan(widths), 0.0, widths)[:, None])
+    werr = np.where(np.isnan(widths)[:, None], 0.0, werr)
+    near = phis + per * np.round((prev[:, None] - phis) / per)
+    turn = np.abs(near - prev[:, None])
+    best_err = werr.min(axis=1, keepdims=True)
+    # width first (within a slack), then the turn
+    key = np.floor((werr - best_err) / max(options.width_slack, 1e-9)) * 1e3 + turn
+    return near, key
+
+
+def _search_one(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, options,
+                scale=None) -> float | None:
+    """The cheapest orientation that fits one move, or None.
+
+    Cost: width error over ``width_slack`` plus the turn from ``prev`` over
+    30° (a 30° turn weighs as much as a width error of ``width_slack``).
+    Candidates are tested in cost order: the four cheapest first, then all.
+    """
+    near, werr, turn = _cost_terms(np.array([direction]), np.array([width]), np.array([prev]),
+                                   cands, beta, wtab, per)
+    key = werr[0] / max(options.width_slack, 1e-9) + turn[0] / 30.0
+    order = np.argsort(key, kind="stable")
+    for chunk in (order[:4], order[4:]):
+        if chunk.size == 0:
+            continue
+        phis = near[0, chunk]
+        m = len(chunk)
+        ok = fits(target, pieces, np.repeat(a[None, :], m, axis=0),
+                  np.repeat(b[None, :], m, axis=0), phis,
+                  scale=None if scale is None else np.full(m, scale))
+        if ok.any():
+            return float(phis[int(np.argmax(ok))])
+    return None
+
+
+def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
+    phis = direction[:, None] * 0 + cands[None, :]
+    rel = np.mod(phis - direction[:, None], 360.0)
+    w = np.interp(rel, np.append(beta, 360.0), np.append(wtab, wtab[0]))
+    werr = np.where(np.isnan(widths)[:, None], 0.0,
+                    np.abs(w - np.where(np.isnan(widths), 0.0, widths)[:, None]))
+    near = phis + per * np.round((prev[:, None] - phis) / per)
+    turn = np.abs(near - prev[:, None])
+    return near, werr, turn
+
+
+def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, per, options,
+            scale=None):
+    """Try the candidate orientations in rounds of increasing cost."""
+    k = len(p0)
+    near, key = _costs(direction, widths, prev, cands, beta, wtab, per, options)
+    order = np.argsort(key, axis=1, kind="stable")
+    found = np.zeros(k, dtype=bool)
+    best = np.full(k, np.nan)
+    start = 0
+    size = 2
+    ncand = len(cands)
+    while start < ncand:
+        todo = np.flatnonzero(~found)
+        if todo.size == 0:
+            break
+        cols = order[todo, start:start + size]  # (t, s)
+        rows = np.repeat(todo, cols.shape[1])
+        phis = near[rows, cols.ravel()]
+        ok = fits(target, pieces, p0[rows], p1[rows], phis,
+                  scale=None if scale is None else scale[rows]).reshape(cols.shape)
+        hit = ok.any(axis=1)
+        first = np.argmax(ok, axis=1)
+        sel = todo[hit]
+        best[sel] = near[sel, cols[hit, first[hit]]]
+        found[sel] = True
+        start += size
+        size *= 2
+    return found, best
+
+
+def _split(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
+           options, scale=None) -> list[OrientedPiece]:
+    """Cut a move that fits nowhere into short pieces; keep those that fit somewhere."""
+    length = float(np.hypot(*(b - a)))
+    step = options.split_length or max(0.05, nozzle.radius / 4)
+    m = max(1, math.ceil(length / step))
+    t = np.linspace(0.0, 1.0, m + 1)
+    q0 = a + t[:-1, None] * (b - a)
+    q1 = a + t[1:, None] * (b - a)
+    dirs = np.full(m, direction)
+    found, best = _search(target, pieces, q0, q1, dirs, np.full(m, width),
+                          np.full(m, prev if not math.isnan(prev) else 0.0), cands, beta, wtab,
+                          per, options, None if scale is None else np.full(m, scale))
+    out: list[OrientedPiece] = []
+    for i in range(m):
+        if not found[i]:
+            continue
+        if out and math.isclose(out[-1].t1, t[i]) and math.isclose(out[-1].angle, best[i]):
+            out[-1] = OrientedPiece(out[-1].t0, float(t[i + 1]), out[-1].angle)
+        else:
+            out.append(OrientedPiece(float(t[i]), float(t[i + 1]), float(best[i])))
+    return out

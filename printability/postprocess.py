@@ -1,0 +1,826 @@
+"""Post-process a slicer's G-code for a nozzle on a machine with a rotary axis.
+
+The slicer's XY paths are kept; for every extruding move of the part the
+nozzle orientation is chosen so that the swept footprint stays inside the
+layer's target (the MMC promise, see :mod:`printability.motion.orientation`)
+and the bead width matches the slicer's planned width where possible. What
+no orientation can print is cut away and reported per layer. Every line that
+needs no change is kept byte for byte; the changes are:
+
+* a rotary word (``C…``) folded into the travel move before an extrusion
+  that needs another orientation (feed policy ``xy``), or a rotation-only
+  line ``G1 C…`` without E inserted just before it (policy ``euclidean``,
+  or no travel to fold it into). Inserted lines carry no F: the firmware
+  turns at the current feed rate read as °/min, and the modal feed the
+  slicer set is never disturbed;
+* extruding arcs (G2/G3) of the part are linearised into G1 chords when the
+  nozzle is not round (a rotary word is never put on an arc);
+* a move that fits only in part is replaced by its printable pieces (with
+  their share of E) joined by non-extruding moves; a move that fits nowhere
+  becomes a non-extruding move. In absolute-E files a ``G92 E…`` restores
+  the E coordinate the next slicer line expects;
+* with ``e_policy="width"`` (default) and a non-round nozzle, E is scaled by
+  the ratio of the bead cross-sections (laid width / planned width, Slic3r's
+  rounded-rectangle model) where the width laid differs from the plan;
+* a comment block (the nozzle, the machine, the version and the per-layer
+  summary) is inserted before the first command; it also marks the file so
+  it is never processed twice.
+
+The layer target G is rebuilt from the slicer's own part extrusions
+(supports, skirt, brim, wipe tower, custom/purge moves and ironing excluded):
+the union of every chord swept by a disk of half its planned width (the
+``;WIDTH:`` comments, or the width inverted from E with the rounded-rectangle
+model). The outer perimeter's centre line is therefore exactly w/2 from ∂G;
+``tolerance`` (default 1 µm) absorbs the rounding of coordinates and of the
+polygonal arcs. Those non-part moves are left as they are.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import re
+import tempfile
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import shapely
+from shapely.geometry import MultiLineString
+
+from gcode import NON_PART_CATEGORIES, parse_gcode
+from gcode.rotary import nearest_equivalent, width_from_e
+from gcode.writer import WriterOptions, format_number, header_lines
+from printability import __version__
+from printability.errors import FileFormatError, InputError, PrintabilityOSError
+from printability.machine import Machine, parse_machine
+from printability.motion.orientation import (
+    OrientationOptions,
+    grown_target,
+    plan_orientations,
+)
+from printability.nozzle import Nozzle, parse_nozzle
+from printability.options import E_POLICIES, FEED_POLICIES
+
+__all__ = [
+    "LayerReport",
+    "PostprocessOptions",
+    "PostprocessResult",
+    "already_processed",
+    "layer_targets",
+    "postprocess_bytes",
+    "postprocess_file",
+    "settings_from_environment",
+]
+
+_PROCESSED = re.compile(rb"^; printability \S+ postprocessed this file", re.MULTILINE)
+
+
+@dataclass(frozen=True)
+class PostprocessOptions:
+    """What to post-process for.
+
+    Attributes
+    ----------
+    nozzle
+        Nozzle SPEC or object; None: a round nozzle of the slicer's
+        ``nozzle_diameter`` (SLIC3R_NOZZLE_DIAMETER).
+    machine
+        Machine SPEC or object (default ``ttr``: a full-turn rotary C axis).
+    tolerance
+        How far a swept footprint may stand outside the target, mm.
+    feed_policy
+        Overrides the machine's; one of ``xy`` or ``euclidean``
+        (``inverse-time`` needs an F on every move, which would rewrite
+        every line: use ``printability generate``).
+    letter
+        Overrides the machine's rotary letter.
+    unwind
+        Cabled head: bring the axis back towards 0 on travel moves.
+    e_policy
+        One of :data:`printability.options.E_POLICIES`.
+    filament_diameter, layer_height
+        Override what the file or the slicer's environment says, mm.
+    angle_decimals
+        Precision of rotary words.
+    chord_tolerance
+        Linearisation of arcs, mm.
+    output_name
+        New final file name to hand back to the slicer through the
+        ``<gcode>.output_name`` file (PrusaSlicer ≥ 2.4 convention); None
+        leaves the name alone.
+    """
+
+    nozzle: str | Nozzle | None = None
+    machine: str | Machine = "ttr"
+    tolerance: float = 1e-3
+    feed_policy: str | None = None
+    letter: str | None = None
+    unwind: bool = False
+    e_policy: str = "width"
+    filament_diameter: float | None = None
+    layer_height: float | None = None
+    angle_decimals: int = 3
+    chord_tolerance: float = 0.002
+    output_name: str | None = None
+    orientation: OrientationOptions = field(default_factory=OrientationOptions)
+
+
+@dataclass(frozen=True)
+class LayerReport:
+    """What post-processing did to one layer (lengths in mm, areas in mm²)."""
+
+    index: int
+    z: float
+    target_area: float
+    moves: int
+    turned: int
+    split_moves: int
+    dropped_moves: int
+    dropped_length: float
+    dropped_area: float
+    printed_length: float
+
+
+@dataclass(frozen=True)
+class PostprocessResult:
+    """Outcome of a post-processing run."""
+
+    path: str
+    output: str
+    already_processed: bool
+    lines_in: int
+    lines_out: int
+    changed_lines: int
+    inserted_lines: int
+    rotary_words: int
+    layers: tuple[LayerReport, ...]
+    elapsed: float
+    nozzle: str
+    machine: str
+    notes: tuple[str, ...] = ()
+
+    @property
+    def dropped_moves(self) -> int:
+        return sum(r.dropped_moves for r in self.layers)
+
+    @property
+    def split_moves(self) -> int:
+        return sum(r.split_moves for r in self.layers)
+
+    @property
+    def dropped_length(self) -> float:
+        return sum(r.dropped_length for r in self.layers)
+
+
+# ----------------------------------------------------------------- environment
+
+
+def _env_float(env: Mapping[str, str], key: str) -> float | None:
+    """First number of a SLIC3R_* value (per-extruder values are comma separated)."""
+    raw = env.get(key)
+    if raw is None or not raw.strip():
+        return None
+    first = raw.split(",")[0].strip().rstrip("%")
+    try:
+        value = float(first)
+    except ValueError:
+        raise InputError(f"environment variable {key}={raw!r}: expected a number") from None
+    return value
+
+
+def settings_from_environment(env: Mapping[str, str] | None = None) -> dict[str, object]:
+    """The slicer settings a PrusaSlicer-family slicer exports to its scripts.
+
+    PrusaSlicer, SuperSlicer and OrcaSlicer export every print setting as an
+    environment variable ``SLIC3R_<KEY>`` (upper case; vectors comma
+    separated, one value per extruder) and ``SLIC3R_PP_OUTPUT_NAME`` (the
+    final name of the file). Recognised here: ``NOZZLE_DIAMETER``,
+    ``LAYER_HEIGHT``, ``FILAMENT_DIAMETER``, ``EXTRUSION_WIDTH``,
+    ``PERIMETER_EXTRUSION_WIDTH``, ``EXTERNAL_PERIMETER_EXTRUSION_WIDTH``,
+    ``USE_RELATIVE_E_DISTANCES``, ``ARC_FITTING`` (PrusaSlicer ≥ 2.6) /
+    ``ENABLE_ARC_FITTING`` (OrcaSlicer), ``GCODE_FLAVOR``, ``PP_OUTPUT_NAME``.
+
+    Returns
+    -------
+    dict
+        Only the keys found, with lower-case names (``nozzle_diameter``...).
+    """
+    env = os.environ if env is None else env
+    out: dict[str, object] = {}
+    for key in ("NOZZLE_DIAMETER", "LAYER_HEIGHT", "FILAMENT_DIAMETER", "EXTRUSION_WIDTH",
+                "PERIMETER_EXTRUSION_WIDTH", "EXTERNAL_PERIMETER_EXTRUSION_WIDTH"):
+        v = _env_float(env, "SLIC3R_" + key)
+        if v is not None:
+            out[key.lower()] = v
+    rel = env.get("SLIC3R_USE_RELATIVE_E_DISTANCES")
+    if rel is not None and rel.strip():
+        out["use_relative_e_distances"] = rel.strip().lower() in ("1", "true", "yes")
+    arc = env.get("SLIC3R_ARC_FITTING") or env.get("SLIC3R_ENABLE_ARC_FITTING")
+    if arc is not None and arc.strip():
+        out["arc_fitting"] = arc.strip().lower() not in ("0", "false", "disabled", "no")
+    for key in ("GCODE_FLAVOR", "PP_OUTPUT_NAME"):
+        if env.get("SLIC3R_" + key):
+            out[key.lower()] = env["SLIC3R_" + key]
+    return out
+
+
+def already_processed(data: bytes) -> bool:
+    """True when printability's marker comment is in the file."""
+    return _PROCESSED.search(data) is not None
+
+
+def _config_value(data: bytes, key: str) -> float | None:
+    """A number from the slicer's configuration comments (``; key = value``)."""
+    m = re.search(rb"^;\s*" + re.escape(key.encode()) + rb"\s*=\s*([-+0-9.eE]+)", data,
+                  re.MULTILINE)
+    if not m:
+        return None
+    try:
+        return float(m.group(1))
+    except ValueError:
+        return None
+
+
+# ----------------------------------------------------------------- layer targets
+
+
+def _part_mask(g) -> np.ndarray:
+    """Extrusions that belong to the part (not skirt, support, purge, wipe...)."""
+    m = g.moves
+    cats = g.feature_category_of_moves()
+    part = np.array([c not in NON_PART_CATEGORIES for c in cats], dtype=bool)
+    return m["is_extrusion"] & part & ~m["wipe"] & (m["layer"] >= 0)
+
+
+def layer_targets(
+    segments: np.ndarray, widths: np.ndarray, layer_of: np.ndarray, n_layers: int,
+    *, quad_segs: int = 16,
+) -> list:
+    """Per layer, the union of the chords swept by a disk of half their width.
+
+    Parameters
+    ----------
+    segments
+        Chords (:data:`gcode.arcs.SEGMENT_DTYPE`) of the part's extrusions.
+    widths
+        Planned width of each chord, mm.
+    layer_of
+        Layer index of each chord.
+    n_layers
+        Number of layers.
+    quad_segs
+        Segments per quarter circle of the round caps (16: the polygon is
+        within 0.02 % of the radius of the true shape).
+
+    Returns
+    -------
+    list
+        A shapely geometry per layer (None for a layer without part extrusions).
+    """
+    out: list = [None] * n_layers
+    if len(segments) == 0:
+        return out
+    order = np.argsort(layer_of, kind="stable")
+    bounds = np.searchsorted(layer_of[order], np.arange(n_layers + 1))
+    for k in range(n_layers):
+        idx = order[bounds[k]:bounds[k + 1]]
+        if idx.size == 0:
+            continue
+        s = segments[idx]
+        w = np.round(widths[idx], 4)
+        pieces = []
+        for wv in np.unique(w):
+            sel = w == wv
+            lines = np.stack([np.column_stack([s["x0"][sel], s["y0"][sel]]),
+                              np.column_stack([s["x1"][sel], s["y1"][sel]])], axis=1)
+            mls = MultiLineString(list(lines))
+            pieces.append(mls.buffer(float(wv) / 2.0, quad_segs=quad_segs))
+        out[k] = shapely.union_all(pieces) if len(pieces) > 1 else pieces[0]
+    return out
+
+
+# ----------------------------------------------------------------- the rewrite
+
+
+@dataclass
+class _Out:
+    """Output chunks plus the bookkeeping of what changed."""
+
+    chunks: list[bytes] = field(default_factory=list)
+    changed: int = 0
+    inserted: int = 0
+    rotary_words: int = 0
+
+
+def _eol_of(line: bytes) -> bytes:
+    if line.endswith(b"\r\n"):
+        return b"\r\n"
+    if line.endswith((b"\n", b"\r")):
+        return line[-1:]
+    return b"\n"
+
+
+def postprocess_bytes(
+    data: bytes,
+    *,
+    path: str = "<bytes>",
+    options: PostprocessOptions = PostprocessOptions(),
+    env: Mapping[str, str] | None = None,
+) -> tuple[bytes, PostprocessResult]:
+    """Post-process G-code bytes; see the module docstring.
+
+    Returns
+    -------
+    (bytes, PostprocessResult)
+        The new content (the input itself when it was already processed).
+
+    Raises
+    ------
+    FileFormatError, InputError
+        Unreadable G-code, bad options.
+    """
+    t_start = time.perf_counter()
+    envs = settings_from_environment(env if env is not None else {})
+    if already_processed(data):
+        n = data.count(b"\n")
+        res = PostprocessResult(path, path, True, n, n, 0, 0, 0, (), 0.0, "", "",
+                                ("already post-processed by printability: left unchanged",))
+        return data, res
+
+    machine = parse_machine(options.machine)
+    if options.nozzle is None:
+        d = envs.get("nozzle_diameter") or _config_value(data, "nozzle_diameter")
+        if d is None:
+            raise InputError(f"{path}: no nozzle given: pass --nozzle SPEC (e.g. "
+                             "ellipse:major=0.8,minor=0.3); the slicer's nozzle_diameter was not "
+                             "found either")
+        nozzle = parse_nozzle(f"circle:d={format_number(float(d), 4)}")
+    else:
+        nozzle = parse_nozzle(options.nozzle)
+    policy = FEED_POLICIES.check(options.feed_policy or machine.feed_policy)
+    if policy == "inverse-time":
+        raise InputError(
+            f"{path}: feed policy inverse-time (G93) needs an F word on every move, so every "
+            "line of the slicer's file would change; post-processing keeps the slicer's lines. "
+            "Use feed policy xy or euclidean, or 'printability generate'"
+        )
+    e_policy = E_POLICIES.check(options.e_policy)
+    letter = (options.letter or machine.rotary_letter).upper()
+    fd = (options.filament_diameter or envs.get("filament_diameter")
+          or _config_value(data, "filament_diameter") or machine.filament_diameter)
+
+    g = parse_gcode(data, path=path)
+    moves = g.moves
+    lines = g.lines
+    n_layers = len(g.layers)
+    heights = g.layers["height"].copy() if n_layers else np.zeros(0)
+    if options.layer_height is not None:
+        heights[:] = options.layer_height
+    heights = np.where(np.isfinite(heights) & (heights > 0), heights,
+                       envs.get("layer_height") or 0.2)
+    if moves.size and (moves["flags"] & 4).any():
+        raise FileFormatError(path, "the file uses inches (G20); only millimetre G-code is "
+                              "supported", line=int(moves["line"][(moves["flags"] & 4) > 0][0]) + 1)
+
+    period = nozzle.symmetry_period
+    turns = machine.kind == "ttr" and period != 0.0
+    wopts = WriterOptions(letter=letter, period=period if turns else 0.0,
+                          angle_min=machine.angle_min if machine.kind == "ttr" else 0.0,
+                          angle_max=machine.angle_max if machine.kind == "ttr" else 0.0,
+                          unwind=options.unwind, feed_policy=policy,
+                          filament_diameter=float(fd), angle_decimals=options.angle_decimals)
+    if machine.kind == "ttr" and machine.full_turn and not options.unwind:
+        # a full-turn axis without cables turns freely: no limits on the coordinate
+        wopts = WriterOptions(**{**wopts.__dict__, "angle_min": -math.inf,
+                                 "angle_max": math.inf})
+
+    part = _part_mask(g)
+    part_idx = np.flatnonzero(part)
+    seg = g.segments(moves=moves[part_idx]) if part_idx.size else np.zeros(0)
+    if part_idx.size:
+        seg_move = part_idx[seg["move"]]  # index into g.moves
+        widths = _segment_widths_simple(seg, moves[seg_move], heights, float(fd))
+        seg_layer = moves["layer"][seg_move]
+        targets = layer_targets(seg, widths, seg_layer, n_layers)
+    else:
+        seg_move = np.zeros(0, np.int64)
+        widths = np.zeros(0)
+        seg_layer = np.zeros(0, np.int64)
+        targets = [None] * n_layers
+
+    # ---- plan every layer
+    seg_angle = np.zeros(len(seg))
+    seg_fold = np.zeros(len(seg), dtype=bool)
+    seg_width_laid = np.full(len(seg), np.nan)
+    seg_pieces: dict[int, list] = {}
+    reports: list[LayerReport] = []
+    prev = 0.0
+    order = np.argsort(seg_layer, kind="stable") if len(seg) else np.zeros(0, np.int64)
+    bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1)) if len(seg) else None
+    seg_len = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"]) if len(seg) else np.zeros(0)
+    for k in range(n_layers):
+        if targets[k] is None:
+            continue
+        idx = order[bounds[k]:bounds[k + 1]]
+        p0 = np.column_stack([seg["x0"][idx], seg["y0"][idx]])
+        p1 = np.column_stack([seg["x1"][idx], seg["y1"][idx]])
+        tgt = grown_target(targets[k], options.tolerance)
+        sm = seg_move[idx]
+        chained = np.zeros(idx.size, dtype=bool)
+        if idx.size > 1 and policy == "xy":
+            same = (sm[1:] == sm[:-1]) | ((sm[1:] == sm[:-1] + 1)
+                                          & (np.abs(p0[1:] - p1[:-1]).max(axis=1) < 1e-9))
+            chained[1:] = same
+        plan = plan_orientations(p0, p1, widths[idx], targets[k], nozzle, machine,
+                                 options=options.orientation, previous=prev,
+                                 prepared_target=tgt, chained=chained)
+        seg_angle[idx] = plan.angle
+        seg_fold[idx] = plan.fold
+        seg_width_laid[idx] = plan.width
+        for i, pieces in plan.pieces.items():
+            seg_pieces[int(idx[i])] = pieces
+        finite = plan.angle[np.isfinite(plan.angle)]
+        if finite.size:
+            prev = float(finite[-1])
+        dl = plan.dropped_length(seg_len[idx])
+        dropped_area = 0.0
+        for i, pieces in plan.pieces.items():
+            kept = sum(p.t1 - p.t0 for p in pieces)
+            dropped_area += float(seg_len[idx][i]) * max(0.0, 1 - kept) * float(widths[idx][i])
+        reports.append(LayerReport(
+            index=k, z=float(g.layers["z"][k]), target_area=float(targets[k].area),
+            moves=int(idx.size), turned=0, split_moves=plan.split_moves,
+            dropped_moves=plan.dropped_moves, dropped_length=dl, dropped_area=dropped_area,
+            printed_length=float(seg_len[idx].sum()) - dl,
+        ))
+
+    # ---- rewrite
+    out, turned_per_layer = _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
+                                     seg_width_laid,
+                                     seg_pieces, widths, heights, wopts, turns, e_policy,
+                                     nozzle, options)
+    reports = [LayerReport(**{**r.__dict__, "turned": turned_per_layer.get(r.index, 0)})
+               for r in reports]
+    summary = [{"z": r.z, "target_area": r.target_area, "lost_area": r.dropped_area,
+                "dropped_moves": r.dropped_moves, "dropped_length": r.dropped_length,
+                "split_moves": r.split_moves} for r in reports]
+    notes = [
+        "lost area = dropped length x planned width (what no orientation can print)",
+        f"tolerance = {options.tolerance:g} mm; E policy = {e_policy}; layer targets from the "
+        "slicer's part extrusions",
+    ]
+    head = header_lines(version=__version__, nozzle=nozzle.spec, machine=machine.spec,
+                        options=wopts, mode="postprocessed", summary=summary, notes=notes)
+    first_cmd = _first_command_line(lines)
+    eol = _eol_of(g.line(first_cmd)) if len(lines) else b"\n"
+    block = b"".join(h.encode("utf-8") + eol for h in head)
+    body = out.chunks
+    body.insert(first_cmd, block)
+    result_bytes = b"".join(body)
+    elapsed = time.perf_counter() - t_start
+    res = PostprocessResult(
+        path=path, output=path, already_processed=False, lines_in=len(lines),
+        lines_out=len(lines) + out.inserted + len(head), changed_lines=out.changed,
+        inserted_lines=out.inserted + len(head), rotary_words=out.rotary_words,
+        layers=tuple(reports), elapsed=elapsed, nozzle=nozzle.spec, machine=machine.spec,
+        notes=tuple(notes),
+    )
+    return result_bytes, res
+
+
+def _segment_widths_simple(seg, mv, heights, filament_diameter) -> np.ndarray:
+    """Planned width of each chord: the slicer's ``;WIDTH:``, or inverted from E."""
+    width = mv["width"].astype(float).copy()
+    need = ~np.isfinite(width) | (width <= 0)
+    if need.any():
+        length = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"])
+        h = heights[np.maximum(mv["layer"], 0)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            est = width_from_e(seg["e"] / length, h, filament_diameter)
+        est = np.where(np.isfinite(est) & (est > 0), est, np.nanmedian(width[~need])
+                       if (~need).any() else 0.4)
+        width[need] = est[need]
+    return width
+
+
+def _first_command_line(lines: np.ndarray) -> int:
+    from gcode._lexer import KIND_BLANK, KIND_COMMENT
+
+    idx = np.flatnonzero((lines["kind"] != KIND_COMMENT) & (lines["kind"] != KIND_BLANK))
+    return int(idx[0]) if idx.size else len(lines)
+
+
+def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, seg_pieces,
+             widths,
+             heights, wopts: WriterOptions, turns: bool, e_policy: str, nozzle: Nozzle,
+             options: PostprocessOptions):
+    """Copy the file line by line, rewriting the part extrusions that need it."""
+    from gcode.line import parse_line
+    from gcode.rotary import bead_area
+    from gcode.writer import edit_line
+
+    out = _Out()
+    n_lines = len(g.lines)
+    starts = [*g.lines["start"].tolist(), len(data)]
+    # chords of each move
+    first_seg: dict[int, tuple[int, int]] = {}
+    if len(seg):
+        mv_ids = seg_move
+        change = np.flatnonzero(np.diff(mv_ids)) + 1
+        b = np.concatenate([[0], change, [len(mv_ids)]])
+        for a0, a1 in itertools.pairwise(b):
+            first_seg[int(mv_ids[a0])] = (int(a0), int(a1))
+    move_of_line = {int(li): i for i, li in enumerate(moves["line"].tolist())}
+    cur = 0.0  # rotary coordinate
+    last_travel_chunk: int | None = None  # chunk index of a travel we may fold C into
+    fold = wopts.feed_policy == "xy"
+    xd = 3
+    ed = 5
+    turned: dict[int, int] = {}
+    d_ang = wopts.angle_decimals
+
+    def coord_for(phi: float, *, unwind: bool = False) -> float:
+        c = nearest_equivalent(phi, 0.0 if unwind else cur, period=wopts.period or 360.0,
+                               lo=wopts.angle_min, hi=wopts.angle_max)
+        if c is None:  # cannot happen: candidates were filtered to reachable ones
+            raise InputError(f"orientation {phi:.3f}° is outside the rotary axis limits")
+        return c
+
+    def turn_to(phi: float, eol: bytes, layer: int) -> None:
+        nonlocal cur, last_travel_chunk
+        if not turns or not math.isfinite(phi):
+            return
+        c = coord_for(phi)
+        if format_number(c, d_ang) == format_number(cur, d_ang):
+            return
+        word = wopts.letter + format_number(c, d_ang)
+        if fold and last_travel_chunk is not None:
+            if wopts.unwind:
+                c = coord_for(phi, unwind=True)
+                word = wopts.letter + format_number(c, d_ang)
+            chunk = out.chunks[last_travel_chunk]
+            out.chunks[last_travel_chunk] = _add_word(chunk, word)
+            if not getattr(chunk, "_changed", False):
+                pass
+            out.changed += 0
+        else:
+            out.chunks.append(b"G1 " + word.encode() + eol)
+            out.inserted += 1
+        out.rotary_words += 1
+        turned[layer] = turned.get(layer, 0) + 1
+        cur = c
+        last_travel_chunk = None
+
+    folded_lines: set[int] = set()
+
+    def _add_word(chunk: bytes, word: str) -> bytes:
+        return edit_line(chunk, add=[word])
+
+    for li in range(n_lines):
+        raw = data[starts[li]:starts[li + 1]]
+        mi = move_of_line.get(li)
+        if mi is None or mi not in first_seg or not _needs_work(mi, first_seg, seg_pieces,
+                                                                 seg_angle, turns, moves,
+                                                                 seg_width_laid, widths,
+                                                                 e_policy):
+            out.chunks.append(raw)
+            if mi is not None:
+                m = moves[mi]
+                is_travel = (m["e"] <= 0) and m["kind"] <= 1 and (
+                    m["x1"] != m["x0"] or m["y1"] != m["y0"])
+                if is_travel and fold and turns:
+                    last_travel_chunk = len(out.chunks) - 1
+                    folded_lines.add(li)
+                elif mi in first_seg and turns:
+                    # an unchanged part extrusion still sets the orientation it was planned at
+                    a0, _ = first_seg[mi]
+                    last_travel_chunk = None
+                elif m["e"] > 0:
+                    last_travel_chunk = None
+            continue
+        # ---- this move is rewritten
+        m = moves[mi]
+        layer = int(m["layer"])
+        a0, a1 = first_seg[mi]
+        eol = _eol_of(raw)
+        parsed = parse_line(raw)
+        fword = parsed.word("F")
+        f_text = fword.text.decode("ascii", "replace") if fword is not None else None
+        eword = parsed.word("E")
+        e_rel = bool(m["flags"] & 1)
+        e_end_abs = eword.value if (eword is not None and not e_rel) else None
+        e_start_abs = (e_end_abs - m["e"]) if e_end_abs is not None else None
+        simple = (a1 - a0 == 1 and a0 not in seg_pieces and m["kind"] <= 1)
+        h = float(heights[layer]) if layer >= 0 else 0.2
+        if simple:
+            phi = seg_angle[a0]
+            add: list[str] = []
+            if seg_fold[a0] and turns and math.isfinite(phi):
+                c = coord_for(phi)
+                if format_number(c, d_ang) != format_number(cur, d_ang):
+                    add = [wopts.letter + format_number(c, d_ang)]
+                    out.rotary_words += 1
+                    turned[layer] = turned.get(layer, 0) + 1
+                    cur = c
+            else:
+                turn_to(phi, eol, layer)
+            scale = _e_scale(seg_width_laid[a0], widths[a0], h, e_policy, nozzle, bead_area)
+            replace = {}
+            if scale != 1.0 and eword is not None:
+                if e_rel:
+                    replace = {"E": "E" + format_number(m["e"] * scale, ed)}
+                else:
+                    replace = {"E": "E" + format_number(e_start_abs + m["e"] * scale, ed)}
+            if replace or add:
+                out.chunks.append(edit_line(raw, replace=replace, add=add))
+                out.changed += 1
+                if replace and not e_rel:
+                    out.chunks.append(f"G92 E{format_number(e_end_abs, ed)}".encode() + eol)
+                    out.inserted += 1
+            else:
+                out.chunks.append(raw)
+            last_travel_chunk = None
+            continue
+        # ---- general case: chords and pieces, written as new G1 lines
+        out.changed += 1
+        pieces_out: list[bytes] = []
+        e_acc = 0.0
+        first = True
+        pos = (m["x0"], m["y0"])
+        comment = b" ; printability: was " + raw.rstrip(b"\r\n").strip()[:60]
+        lines_new: list[bytes] = []
+        for s in range(a0, a1):
+            sx0, sy0, sx1, sy1 = seg["x0"][s], seg["y0"][s], seg["x1"][s], seg["y1"][s]
+            se = seg["e"][s]
+            if s in seg_pieces:
+                plist = [(p.t0, p.t1, p.angle) for p in seg_pieces[s]]
+            else:
+                plist = [(0.0, 1.0, seg_angle[s])]
+            scale_w = _e_scale(seg_width_laid[s], widths[s], h, e_policy, nozzle, bead_area)
+            for t0, t1, phi in plist:
+                qx0, qy0 = sx0 + t0 * (sx1 - sx0), sy0 + t0 * (sy1 - sy0)
+                qx1, qy1 = sx0 + t1 * (sx1 - sx0), sy0 + t1 * (sy1 - sy0)
+                if math.hypot(qx0 - pos[0], qy0 - pos[1]) > 1e-9:
+                    lines_new.append(b"G1 X" + format_number(qx0, xd).encode() + b" Y"
+                                     + format_number(qy0, xd).encode())
+                    pos = (qx0, qy0)
+                c_word = b""
+                if turns and math.isfinite(phi):
+                    c = coord_for(phi)
+                    if format_number(c, d_ang) != format_number(cur, d_ang):
+                        c_word = (wopts.letter + format_number(c, d_ang)).encode()
+                        if not (seg_fold[s] and s not in seg_pieces):
+                            lines_new.append(b"G1 " + c_word)
+                            c_word = b""
+                        out.rotary_words += 1
+                        turned[layer] = turned.get(layer, 0) + 1
+                        cur = c
+                if s in seg_pieces:
+                    scale = 1.0
+                    if math.isfinite(phi):
+                        rel = math.degrees(math.atan2(sy1 - sy0, sx1 - sx0))
+                        w_laid = nozzle.bead_width(rel, phi) if turns else float("nan")
+                        scale = _e_scale(w_laid, widths[s], h, e_policy, nozzle, bead_area)
+                else:
+                    scale = scale_w
+                de = se * (t1 - t0) * scale
+                e_acc += de
+                if e_rel:
+                    e_word = b"E" + format_number(de, ed).encode()
+                else:
+                    e_word = b"E" + format_number(e_start_abs + e_acc, ed).encode()
+                words = [b"G1", b"X" + format_number(qx1, xd).encode(),
+                         b"Y" + format_number(qy1, xd).encode(), e_word]
+                if c_word:
+                    words.append(c_word)
+                if first and f_text is not None:
+                    words.append(f_text.encode())
+                first = False
+                lines_new.append(b" ".join(words))
+                pos = (qx1, qy1)
+        end = (m["x1"], m["y1"])
+        if math.hypot(end[0] - pos[0], end[1] - pos[1]) > 1e-9 or not lines_new:
+            words = [b"G1", b"X" + format_number(end[0], xd).encode(),
+                     b"Y" + format_number(end[1], xd).encode()]
+            if first and f_text is not None:
+                words.append(f_text.encode())
+            lines_new.append(b" ".join(words))
+        if m["z1"] != m["z0"] and math.isfinite(m["z1"]):
+            lines_new.append(b"G1 Z" + format_number(m["z1"], xd).encode())
+        if not e_rel and e_end_abs is not None and abs(e_acc - m["e"]) > 10 ** -ed:
+            lines_new.append(b"G92 E" + format_number(e_end_abs, ed).encode())
+        lines_new[0] = lines_new[0] + comment
+        for ln in lines_new:
+            pieces_out.append(ln + eol)
+        out.inserted += len(pieces_out) - 1
+        out.chunks.extend(pieces_out)
+        last_travel_chunk = None
+    return out, turned
+
+
+def _needs_work(mi, first_seg, seg_pieces, seg_angle, turns, moves, seg_width_laid, widths,
+                e_policy) -> bool:
+    a0, a1 = first_seg[mi]
+    if any(s in seg_pieces for s in range(a0, a1)):
+        return True
+    if turns:
+        return True  # orientation (and maybe E) may change; decided in the rewrite
+    return False
+
+
+def _e_scale(w_laid: float, w_plan: float, h: float, e_policy: str, nozzle: Nozzle,
+             bead_area) -> float:
+    """Factor applied to the slicer's E for a bead laid ``w_laid`` wide instead of ``w_plan``."""
+    if e_policy != "width" or nozzle.is_round or not (math.isfinite(w_laid)
+                                                       and math.isfinite(w_plan)):
+        return 1.0
+    if abs(w_laid - w_plan) <= 0.01 * w_plan:
+        return 1.0
+    a_plan = float(bead_area(w_plan, h))
+    return float(bead_area(w_laid, h)) / a_plan if a_plan > 0 else 1.0
+
+
+# ----------------------------------------------------------------- files
+
+
+def _write_atomic(path: Path, content: bytes) -> None:
+    """Write ``content`` to ``path`` through a temporary file in the same directory."""
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(content)
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            mode = path.stat().st_mode & 0o7777
+            os.chmod(tmp, mode)
+        except OSError:
+            pass
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def postprocess_file(
+    path: str | os.PathLike[str],
+    *,
+    options: PostprocessOptions = PostprocessOptions(),
+    output: str | os.PathLike[str] | None = None,
+    env: Mapping[str, str] | None = None,
+) -> PostprocessResult:
+    """Post-process a G-code file, in place unless ``output`` is given.
+
+    The file is replaced atomically (temporary file + ``os.replace``), so on
+    any error the slicer's file is left exactly as it was. When
+    ``options.output_name`` is set, the new final name is written to
+    ``<path>.output_name`` (one line), the file PrusaSlicer ≥ 2.4 reads after
+    the script ends to rename its output.
+
+    Parameters
+    ----------
+    path
+        The G-code file (for a slicer: the last command-line argument).
+    options
+        See :class:`PostprocessOptions`.
+    output
+        Write here instead of in place.
+    env
+        Environment with the slicer's ``SLIC3R_*`` settings (default: ``os.environ``).
+
+    Raises
+    ------
+    PrintabilityOSError, FileFormatError, InputError
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise PrintabilityOSError(f"{p}: cannot read the G-code file "
+                                  f"({exc.strerror or exc})") from None
+    environ = dict(os.environ) if env is None else dict(env)
+    new, res = postprocess_bytes(data, path=str(p), options=options, env=environ)
+    target = Path(output) if output is not None else p
+    if res.already_processed and output is None:
+        return res
+    try:
+        _write_atomic(target, new)
+    except OSError as exc:
+        raise PrintabilityOSError(f"{target}: cannot write the post-processed G-code "
+                                  f"({exc.strerror or exc}); the original is unchanged") from None
+    if options.output_name:
+        try:
+            _write_atomic(Path(str(p) + ".output_name"),
+                          options.output_name.encode("utf-8") + b"\n")
+        except OSError as exc:
+            raise PrintabilityOSError(f"{p}.output_name: cannot write the output name "
+                                      f"({exc.strerror or exc})") from None
+    return PostprocessResult(**{**res.__dict__, "output": str(target)})
