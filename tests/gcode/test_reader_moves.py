@@ -5,8 +5,10 @@ from __future__ import annotations
 import math
 import re
 
+import hypothesis.strategies as st
 import numpy as np
 import pytest
+from hypothesis import given, settings
 
 from gcode import (
     MF_E_RELATIVE,
@@ -421,3 +423,57 @@ def test_line_layer_column(gfiles):
         assert g.lines["layer"][L["line"][k]] == k
         assert g.line(int(L["line"][k])).startswith(b";LAYER_CHANGE")
     assert (g.moves["layer"][L["first_move"][5] : L["end_move"][5]] == 5).all()
+
+
+def test_memory_limit_is_checked_before_parsing():
+    from printability.errors import ResourceError
+
+    with pytest.raises(ResourceError, match="max_memory"):
+        parse_gcode(b"G1 X1\n" * 1000, settings=Settings(max_memory=10_000))
+
+
+_coord = st.integers(-500, 500).map(lambda k: k / 10)
+_op = st.one_of(
+    st.sampled_from(["G90", "G91", "M82", "M83", "G92 E0", "G20", "G21"]),
+    st.tuples(st.sampled_from(["G0", "G1"]), _coord, _coord, _coord),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(_op, max_size=25))
+def test_modal_state_against_a_plain_model(ops):
+    """Marlin semantics, written out the obvious way, on random programs."""
+    lines = ["G90", "G21", "M82", "G92 E0", "G1 X0 Y0"]
+    x = y = e = 0.0
+    abs_xyz = abs_e = True
+    unit = 1.0
+    want = [(0.0, 0.0, 0.0)]
+    for op in ops:
+        if isinstance(op, str):
+            lines.append(op)
+            if op == "G90":
+                abs_xyz = abs_e = True
+            elif op == "G91":
+                abs_xyz = abs_e = False
+            elif op == "M82":
+                abs_e = True
+            elif op == "M83":
+                abs_e = False
+            elif op == "G92 E0":
+                e = 0.0
+            elif op == "G20":
+                unit = 25.4
+            elif op == "G21":
+                unit = 1.0
+            continue
+        code, vx, vy, ve = op
+        lines.append(f"{code} X{vx} Y{vy} E{ve}")
+        nx = x + vx * unit if not abs_xyz else vx * unit
+        ny = y + vy * unit if not abs_xyz else vy * unit
+        de = ve * unit if not abs_e else ve * unit - e
+        e = e + de if not abs_e else ve * unit
+        want.append((nx, ny, de))
+        x, y = nx, ny
+    m = parse_gcode(("\n".join(lines) + "\n").encode(), flavor="marlin").moves
+    got = np.column_stack([m["x1"], m["y1"], m["e"]])
+    assert np.allclose(got, np.array(want).reshape(-1, 3), rtol=0, atol=1e-9)
