@@ -14,9 +14,11 @@ from dataclasses import dataclass
 from printability.errors import UnknownOptionError
 
 __all__ = [
+    "BEAD_MODELS",
     "ENGINES",
     "ENDSTOP_POLICIES",
     "EXTRUDER_ERROR_POLICIES",
+    "E_POLICIES",
     "FAULT_KINDS",
     "FEED_POLICIES",
     "FIRMWARE_PROFILES",
@@ -187,6 +189,19 @@ SIM_CLOCKS = _reg(
     "simulator clock",
     sim="simulated time: the printer never waits in real time (tests, fast runs)",
     real="wall-clock time: moves, heating and dwells take as long as on the machine",
+)
+
+E_POLICIES = _reg(
+    "E policy",
+    width="scale the slicer's E by the bead cross-section laid at the chosen angle over the "
+    "planned one",
+    keep="keep the slicer's E (volume per mm as planned) whatever width the nozzle lays",
+)
+
+BEAD_MODELS = _reg(
+    "bead model",
+    rounded="rectangle with semicircular ends, area h(w - h) + pi h^2/4 (Slic3r/PrusaSlicer)",
+    rectangle="rectangle, area w h (CuraEngine)",
 )
 
 REGISTRIES: dict[str, Registry] = {
