@@ -55,6 +55,10 @@ What it cannot know
   derived widths are rounded to 1 µm.
 * Spiral (vase) layers, whose Z rises while extruding, are projected onto
   their layer's plane.
+* In files without layer comments, layers come from the Z of the extrusions
+  (see :mod:`gcode.reader`): a purge line printed at another Z than the
+  first layer becomes a thin layer of its own, and the heights are the Z
+  steps between layers.
 """
 
 from __future__ import annotations
