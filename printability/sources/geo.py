@@ -218,9 +218,10 @@ def _finish(
         geom = MultiPolygon([project_equirectangular(q, lon0, lat0) for q in polys])
         if fit is None and map_scale is None:
             raise InputError(
-                f"{p}: the coordinates are longitude/latitude degrees; after projection they "
-                "are kilometres, so give a print scale: fit=MM (longest side in mm) or "
-                "map_scale= (mm per km)")
+                f"{p}: the coordinates are read as longitude/latitude degrees (GeoJSON's "
+                "rule, and all lie within ±180° × ±90°); after projection they are "
+                "kilometres, so give a print scale: fit=MM (longest side in mm) or "
+                "map_scale= (mm per km); if they are plane coordinates, pass geographic=False")
         if units is not None:
             raise InputError(f"{p}: units= does not apply to longitude/latitude data; use "
                              "fit= or map_scale=")
