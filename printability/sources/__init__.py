@@ -119,6 +119,7 @@ def load_layers(
     units: str | None = None,
     fit: float | None = None,
     map_scale: float | None = None,
+    geographic: bool | None = None,
     clip: Sequence[float] | None = None,
     keep_largest: int | None = None,
     settings: Settings = DEFAULT_SETTINGS,
@@ -141,6 +142,8 @@ def load_layers(
         Scale so the longest side of the part is ``fit`` mm.
     map_scale
         Geographic GeoJSON only: mm on the print per km on the ground.
+    geographic
+        GeoJSON only: force (True) or deny (False) reading coordinates as lon/lat.
     clip, keep_largest
         GeoJSON/WKT only: keep what lies in a box (file coordinates) / the N
         largest polygons.
@@ -159,7 +162,8 @@ def load_layers(
     p = Path(path)
     fmt = SOURCE_FORMATS.check(format) if format is not None else detect_format(p)
     given = {"layer_height": layer_height, "first_layer_height": first_layer_height,
-             "units": units, "fit": fit, "map_scale": map_scale, "clip": clip,
+             "units": units, "fit": fit, "map_scale": map_scale, "geographic": geographic,
+             "clip": clip,
              "keep_largest": keep_largest}
 
     def only(*allowed: str) -> None:
@@ -197,11 +201,12 @@ def load_layers(
 
         return load_dxf_layers(p, units=units, fit=fit, **kw)
     if fmt == "geojson":
-        only("units", "fit", "map_scale", "clip", "keep_largest")
+        only("units", "fit", "map_scale", "geographic", "clip", "keep_largest")
         from printability.sources.geo import load_geojson_layers
 
-        return load_geojson_layers(p, units=units, fit=fit, map_scale=map_scale, clip=clip,
-                                   keep_largest=keep_largest, **kw)
+        return load_geojson_layers(p, units=units, fit=fit, map_scale=map_scale,
+                                   geographic=geographic, clip=clip, keep_largest=keep_largest,
+                                   **kw)
     if fmt == "wkt":
         only("units", "fit", "clip", "keep_largest")
         from printability.sources.geo import load_wkt_layers

@@ -103,6 +103,19 @@ def test_forced_format(shared_data: Path, tmp_path: Path):
         load_layers(src, format="png")
 
 
+def test_geojson_options_pass_through(shared_data: Path, tmp_path: Path):
+    path = tmp_path / "plate.geojson"
+    path.write_text('{"type": "Polygon", "coordinates": [[[0, 0], [40, 0], [40, 20], [0, 0]]]}')
+    with pytest.raises(InputError, match="geographic=False"):
+        load_layers(path)
+    assert load_layers(path, geographic=False)[0].area == pytest.approx(400.0)
+    japan = load_layers(shared_data / "japan_10m.geojson", keep_largest=4, fit=150.0)
+    assert len(japan[0].region.geoms) == 4
+    clipped = load_layers(shared_data / "japan_10m.geojson", clip=(128, 30, 146, 46),
+                          map_scale=0.5)
+    assert clipped.meta["scale"] == 0.5
+
+
 def test_options_that_do_not_apply(shared_data: Path):
     with pytest.raises(InputError, match="layer_height do not apply to svg"):
         load_layers(shared_data / "svg" / "bootstrap_gear-fill.svg", layer_height=0.2)
