@@ -1,0 +1,293 @@
+"""Analyse a sliced part for several nozzles on one machine: per layer, per nozzle.
+
+:func:`analyze` runs :func:`printability.mmc.compute_mmc` on every layer of a
+:class:`~printability.layers.LayerStack` for every candidate nozzle, sums
+areas and volumes, ranks the nozzles (:mod:`printability.ranking`) and returns
+an immutable :class:`Analysis` whose :meth:`Analysis.to_json` is the JSON
+contract of DESIGN.md §4.
+
+Layers are independent, so they run in parallel: ``settings.workers``
+processes on this machine, or a Dask cluster when ``scheduler`` names one
+(the ``dask`` extra).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from printability import __version__
+from printability.errors import InputError, NozzleTooLargeError
+from printability.layers import Layer, LayerStack
+from printability.machine import Machine, parse_machine
+from printability.mmc import MMCResult, choose_engine, compute_mmc
+from printability.nozzle import Nozzle, parse_nozzle
+from printability.options import ENGINES
+from printability.settings import DEFAULT_SETTINGS, Settings
+
+__all__ = ["Analysis", "LayerOutcome", "NozzleAnalysis", "analyze"]
+
+
+@dataclass(frozen=True)
+class LayerOutcome:
+    """One nozzle on one layer.
+
+    ``result`` is the full engine result (None when the nozzle fits nowhere in
+    the layer, in which case the whole layer is lost, or when results were
+    not kept).
+    """
+
+    index: int
+    z: float
+    height: float
+    target_area: float
+    as_built_area: float
+    lost_area: float
+    lost_area_bounds: tuple[float, float]
+    components: int
+    engine: str
+    elapsed: float
+    result: MMCResult | None = field(default=None, compare=False, repr=False)
+    note: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "index": self.index,
+            "z": self.z,
+            "height": self.height,
+            "target_area": self.target_area,
+            "as_built_area": self.as_built_area,
+            "lost_area": self.lost_area,
+            "lost_area_bounds": list(self.lost_area_bounds),
+            "components": self.components,
+            **({"note": self.note} if self.note else {}),
+        }
+
+
+@dataclass(frozen=True)
+class NozzleAnalysis:
+    """One nozzle over all layers; areas in mm², volumes in mm³ (Σ area·height)."""
+
+    nozzle: Nozzle
+    layers: tuple[LayerOutcome, ...]
+    rank: int = 0
+    build_time: float = 0.0
+
+    @property
+    def target_area(self) -> float:
+        return sum(o.target_area for o in self.layers)
+
+    @property
+    def as_built_area(self) -> float:
+        return sum(o.as_built_area for o in self.layers)
+
+    @property
+    def lost_area(self) -> float:
+        return sum(o.lost_area for o in self.layers)
+
+    @property
+    def lost_area_bounds(self) -> tuple[float, float]:
+        return (sum(o.lost_area_bounds[0] for o in self.layers),
+                sum(o.lost_area_bounds[1] for o in self.layers))
+
+    @property
+    def lost_fraction(self) -> float:
+        t = self.target_area
+        return self.lost_area / t if t > 0 else 0.0
+
+    @property
+    def components(self) -> int:
+        """Largest number of configuration-space components in any layer."""
+        return max((o.components for o in self.layers), default=0)
+
+    def volume(self, what: str) -> float:
+        """Σ over layers of an area attribute times the layer height, mm³."""
+        return sum(getattr(o, what) * o.height for o in self.layers)
+
+    def to_json(self, *, multi_layer: bool) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "spec": self.nozzle.spec,
+            "rank": self.rank,
+            "target_area": self.target_area,
+            "as_built_area": self.as_built_area,
+            "lost_area": self.lost_area,
+            "lost_fraction": self.lost_fraction,
+            "lost_area_bounds": list(self.lost_area_bounds),
+            "components": self.components,
+            "build_time_estimate_s": self.build_time,
+            "layers": [o.to_json() for o in self.layers],
+        }
+        if multi_layer:
+            out.update(
+                target_volume=self.volume("target_area"),
+                as_built_volume=self.volume("as_built_area"),
+                lost_volume=self.volume("lost_area"),
+            )
+        return out
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """A ranked analysis of one part: ``nozzles`` sorted by rank (best first)."""
+
+    input: str
+    machine: Machine
+    engine: str
+    settings: Settings
+    layers: LayerStack
+    nozzles: tuple[NozzleAnalysis, ...]
+    elapsed: float
+
+    @property
+    def multi_layer(self) -> bool:
+        return len(self.layers) > 1
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON document of DESIGN.md §4 (plain dicts, lists and floats)."""
+        return {
+            "input": self.input,
+            "units": "mm",
+            "version": __version__,
+            "machine": self.machine.spec,
+            "engine": self.engine,
+            "resolution": self.settings.resolution,
+            "layers": len(self.layers),
+            "elapsed_s": self.elapsed,
+            "nozzles": [n.to_json(multi_layer=self.multi_layer) for n in self.nozzles],
+        }
+
+
+def _outcome(layer: Layer, nozzle: Nozzle, machine: Machine, engine: str,
+             settings: Settings, keep: bool) -> LayerOutcome:
+    t0 = time.perf_counter()
+    area = layer.area
+    eng = choose_engine(nozzle, machine) if engine == "auto" else engine
+    try:
+        r = compute_mmc(layer.region, nozzle, machine, engine=eng, settings=settings,
+                        name=f"layer {layer.index} (z={layer.z:g} mm)")
+    except NozzleTooLargeError:
+        return LayerOutcome(layer.index, layer.z, layer.height, area, 0.0, area, (area, area), 0,
+                            eng, time.perf_counter() - t0, None,
+                            note="nozzle larger than the layer: nothing printable")
+    return LayerOutcome(layer.index, layer.z, layer.height, r.target_area, r.as_built_area,
+                        r.lost_area, (float(r.lost_area_bounds[0]), float(r.lost_area_bounds[1])),
+                        r.components.count, r.engine, r.elapsed, r if keep else None)
+
+
+def _run_task(args: tuple) -> LayerOutcome:
+    return _outcome(*args)
+
+
+def analyze(
+    layers: LayerStack,
+    nozzles: Sequence[str | Nozzle],
+    machine: str | Machine = "xy",
+    *,
+    engine: str = "auto",
+    settings: Settings = DEFAULT_SETTINGS,
+    keep_results: bool = True,
+    scheduler: str | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+) -> Analysis:
+    """Analyse every layer for every nozzle and rank the nozzles.
+
+    Parameters
+    ----------
+    layers
+        The part (see :func:`printability.sources.load_layers`).
+    nozzles
+        Candidate nozzle SPECs or objects; at least one.
+    machine
+        Machine SPEC or object.
+    engine
+        One of :data:`printability.options.ENGINES`.
+    settings
+        Tolerances; ``settings.workers`` > 1 runs layers in parallel processes.
+    keep_results
+        Keep every engine result (geometry for the report); turn off for big
+        parts to bound memory.
+    scheduler
+        Address of a Dask scheduler (``tcp://host:port``) to run the layers on
+        a cluster instead of local processes (needs the ``dask`` extra).
+    on_progress
+        Called with (done, total) after each layer×nozzle task.
+
+    Returns
+    -------
+    Analysis
+        Nozzles ranked by lost area (volume for several layers), ties broken by
+        the build-time estimate.
+    """
+    engine = ENGINES.check(engine)
+    if not nozzles:
+        raise InputError("analyze: give at least one nozzle (e.g. --nozzle circle:d=0.4)")
+    nozs = [parse_nozzle(n) for n in nozzles]
+    mach = parse_machine(machine)
+    t0 = time.perf_counter()
+    tasks = [(layer, noz, mach, engine, settings, keep_results) for noz in nozs for layer in layers]
+    outcomes = list(_map(tasks, settings=settings, scheduler=scheduler, on_progress=on_progress))
+    per_nozzle = []
+    n_layers = len(layers)
+    for i, noz in enumerate(nozs):
+        per_nozzle.append(NozzleAnalysis(noz, tuple(outcomes[i * n_layers:(i + 1) * n_layers])))
+    ranked = _rank(per_nozzle, mach)
+    used = {o.engine for o in outcomes}
+    return Analysis(
+        input=layers.source,
+        machine=mach,
+        engine=used.pop() if len(used) == 1 else "mixed",
+        settings=settings,
+        layers=layers,
+        nozzles=tuple(ranked),
+        elapsed=time.perf_counter() - t0,
+    )
+
+
+def _rank(per_nozzle: list[NozzleAnalysis], machine: Machine) -> list[NozzleAnalysis]:
+    from printability.ranking import DEFAULT_SPEED, bead_width_for_time
+
+    timed = []
+    for n in per_nozzle:
+        w = bead_width_for_time(n.nozzle, rotary=machine.has_rotary and not n.nozzle.is_round)
+        timed.append(replace(n, build_time=n.as_built_area / (w * DEFAULT_SPEED)))
+    multi = any(o.height > 0 for n in timed for o in n.layers)
+    # lost amounts equal to 1e-9 relative are ties, ordered by build time
+    key = (lambda n: (float(f"{n.volume('lost_area'):.9g}"), n.build_time)) if multi else \
+          (lambda n: (float(f"{n.lost_area:.9g}"), n.build_time))
+    ordered = sorted(timed, key=key)
+    return [replace(n, rank=i + 1) for i, n in enumerate(ordered)]
+
+
+def _map(tasks: list[tuple], *, settings: Settings, scheduler: str | None,
+         on_progress: Callable[[int, int], None] | None) -> Iterable[LayerOutcome]:
+    total = len(tasks)
+    if scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise InputError("--scheduler needs Dask: pip install 'printability[dask]'") from None
+        with Client(scheduler) as client:
+            futures = client.map(_run_task, tasks, pure=False)
+            results = []
+            for i, fut in enumerate(futures, 1):
+                results.append(fut.result())
+                if on_progress:
+                    on_progress(i, total)
+            return results
+    if settings.workers > 1 and total > 1:
+        with ProcessPoolExecutor(max_workers=min(settings.workers, total)) as pool:
+            results = []
+            for i, out in enumerate(pool.map(_run_task, tasks), 1):
+                results.append(out)
+                if on_progress:
+                    on_progress(i, total)
+            return results
+    results = []
+    for i, task in enumerate(tasks, 1):
+        results.append(_run_task(task))
+        if on_progress:
+            on_progress(i, total)
+    return results

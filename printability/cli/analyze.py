@@ -1,0 +1,100 @@
+"""``printability analyze``: rank nozzles on a sliced part (DESIGN.md §4)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from printability.cli.common import choices_help, progress_callback, write_json_atomic
+from printability.options import ENGINES
+
+__all__ = ["register"]
+
+
+def analyze_command(
+    input: Path = typer.Argument(..., help="Part: .gcode, .stl/.3mf/.obj, .svg/.dxf/.geojson/"  # noqa: B008
+                                 ".wkt, a slice-outline .txt or a multi-layer slice SVG."),
+    nozzle: list[str] = typer.Option(  # noqa: B008
+        ["circle:d=0.4"], "--nozzle", "-n",
+        help="Nozzle SPEC, repeatable: circle:d=0.4, ellipse:major=0.8,minor=0.3, "
+             "rect:w=0.8,h=0.3, polygon:FILE.svg; ',angle=DEG' sets the mounting angle."),
+    machine: str = typer.Option("xy", "--machine", "-m",
+                                help="Machine SPEC: xy, ttr, ttr:min=-90,max=90,step=1, a built-in "
+                                     "profile (polar, scara) or a TOML file."),
+    resolution: float = typer.Option(0.05, "--resolution", help="Raster grid spacing, mm."),
+    angle_step: float | None = typer.Option(None, "--angle-step",
+                                            help="Rotary sampling step, degrees (default: the "
+                                                 "machine's)."),
+    engine: str = typer.Option("auto", "--engine", help=choices_help(ENGINES, "MMC engine.")),
+    layer_height: float | None = typer.Option(None, "--layer-height",
+                                              help="Slice meshes at this layer height, mm."),
+    first_layer_height: float | None = typer.Option(None, "--first-layer-height",
+                                                    help="First layer height for meshes, mm."),
+    units: str | None = typer.Option(None, "--units",
+                                     help="Units of a mesh or drawing without units (mm, in...)."),
+    fit: float | None = typer.Option(None, "--fit",
+                                     help="Scale a drawing or map so its longest side is FIT mm."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the result as JSON here."),  # noqa: B008
+    out: Path | None = typer.Option(None, "--out", help="Write an HTML report with figures and "  # noqa: B008
+                                    "the as-built geometry into this folder."),
+    workers: int = typer.Option(1, "--workers", "-j", help="Parallel processes for layers."),
+    scheduler: str | None = typer.Option(None, "--scheduler",
+                                         help="Dask scheduler address to run layers on a cluster."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+) -> None:
+    """Compute, per layer and per nozzle, the motion restriction P, the as-built layer S and
+    what is lost; print the nozzles ranked by lost area."""
+    from printability.analysis import analyze
+    from printability.settings import Settings
+    from printability.sources import load_layers
+
+    settings = Settings(resolution=resolution, angle_step=angle_step, workers=workers,
+                        progress=progress)
+    engine = ENGINES.check(engine)
+    layers = load_layers(input, layer_height=layer_height, first_layer_height=first_layer_height,
+                         units=units, fit=fit, settings=settings)
+    with progress_callback("analysing layers", enabled=progress) as on_progress:
+        result = analyze(layers, nozzle, machine, engine=engine, settings=settings,
+                         keep_results=out is not None, scheduler=scheduler,
+                         on_progress=on_progress)
+    print_ranking(result)
+    if json_out is not None:
+        write_json_atomic(json_out, result.to_json())
+    if out is not None:
+        from printability.report import write_report
+
+        index = write_report(result, out)
+        typer.echo(f"report: {index}")
+
+
+def print_ranking(result) -> None:
+    """The ranking table on stdout (rich)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    multi = result.multi_layer
+    table = Table(title=f"{result.input} — machine {result.machine.spec}, engine {result.engine}, "
+                        f"{len(result.layers)} layer(s)")
+    for col in ("rank", "nozzle", "lost mm³" if multi else "lost mm²", "lost %",
+                "bounds (area mm²)", "components", "build time"):
+        table.add_column(col, justify="left" if col == "nozzle" else "right")
+    for n in result.nozzles:
+        lost = n.volume("lost_area") if multi else n.lost_area
+        lo, hi = n.lost_area_bounds
+        table.add_row(str(n.rank), n.nozzle.spec, f"{lost:.4g}", f"{100 * n.lost_fraction:.2f}",
+                      f"[{lo:.4g}, {hi:.4g}]", str(n.components), _duration(n.build_time))
+    import sys
+
+    # a pipe or a file gets the whole table, not one wrapped to 80 columns
+    Console(width=None if sys.stdout.isatty() else 140).print(table)
+
+
+def _duration(seconds: float) -> str:
+    m, s = divmod(round(seconds), 60)
+    h, m = divmod(m, 60)
+    return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s"
+
+
+def register(app: typer.Typer) -> None:
+    app.command("analyze")(analyze_command)

@@ -1,0 +1,71 @@
+"""Helpers shared by the subcommand adapters: option help from the registries,
+atomic writes, progress bars."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from printability.errors import PrintabilityOSError
+from printability.options import Registry
+
+__all__ = ["choices_help", "progress_callback", "write_atomic", "write_json_atomic"]
+
+
+def choices_help(registry: Registry, text: str) -> str:
+    """Help text that lists a registry's choices (the CLI reads the same registry)."""
+    return f"{text} One of: {', '.join(registry.choices)}."
+
+
+def write_atomic(path: str | Path, data: bytes | str) -> None:
+    """Write a file through a temporary file in the same folder and a rename.
+
+    A reader never sees a half-written file, and on failure the previous file
+    (if any) is left untouched.
+    """
+    path = Path(path)
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise PrintabilityOSError(f"{path}: cannot write ({exc.strerror})") from None
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(raw)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise PrintabilityOSError(f"{path}: cannot write ({exc.strerror})") from None
+
+
+def write_json_atomic(path: str | Path, doc: Any) -> None:
+    write_atomic(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+
+
+@contextlib.contextmanager
+def progress_callback(description: str, *, enabled: bool) -> Iterator[Callable[[int, int], None]]:
+    """A rich progress bar on stderr, exposed as an ``on_progress(done, total)`` callback."""
+    if not enabled or (not sys.stderr.isatty() and not os.environ.get("PRINTABILITY_PROGRESS")):
+        yield lambda done, total: None
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(description, total=None)
+
+        def update(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        yield update
