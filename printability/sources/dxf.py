@@ -8,7 +8,9 @@ What is read
     polylines and splines) are joined end to end into loops when their ends
     meet within ``join_tolerance`` mm. Pieces that do not close a loop are
     reported in ``meta["warnings"]`` and left out. Other entities (TEXT,
-    DIMENSION, HATCH, 3-D entities...) are counted in ``meta["skipped"]``.
+    DIMENSION, HATCH, 3-D entities...) are counted in ``meta["skipped"]``, and
+    so are invisible entities and those on layers that are off or frozen
+    (construction geometry). Paper space is not read.
 
 Nesting
     Outlines are not marked as outer boundaries or holes: a loop inside an odd
@@ -226,8 +228,13 @@ def load_dxf_layers(
     rings: list[np.ndarray] = []
     pieces: list[np.ndarray] = []
     skipped: dict[str, int] = defaultdict(int)
+    hidden = {layer.dxf.name.lower() for layer in doc.layers
+              if layer.is_off() or layer.is_frozen()}
     for e in _entities(doc.modelspace()):
         kind = e.dxftype()
+        if e.dxf.get("invisible", 0) or str(e.dxf.get("layer", "0")).lower() in hidden:
+            skipped["hidden (invisible, or on a layer that is off or frozen)"] += 1
+            continue
         if kind not in _CURVES:
             skipped[kind] += 1
             continue

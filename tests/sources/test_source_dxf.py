@@ -117,6 +117,21 @@ def test_open_pieces_are_reported(tmp_path: Path):
     assert any("2 open piece" in w for w in stack.meta["warnings"])
 
 
+def test_hidden_layers_are_skipped(tmp_path: Path):
+    doc = ezdxf.new(units=4)
+    doc.layers.add("CONSTRUCTION").off()
+    doc.layers.add("FROZEN").freeze()
+    msp = doc.modelspace()
+    msp.add_circle((0, 0), 5, dxfattribs={"layer": "CONSTRUCTION"})
+    msp.add_circle((20, 0), 5, dxfattribs={"layer": "FROZEN"})
+    msp.add_lwpolyline([(0, 0), (4, 0), (4, 4), (0, 4)], close=True)
+    path = tmp_path / "layers.dxf"
+    doc.saveas(path)
+    stack = load_dxf_layers(path)
+    assert stack[0].area == pytest.approx(16.0)
+    assert sum(stack.meta["skipped"].values()) == 2
+
+
 def test_no_closed_outline(tmp_path: Path):
     doc = ezdxf.new(units=4)
     doc.modelspace().add_line((0, 0), (1, 1))
