@@ -284,6 +284,36 @@ def test_real_slices_bracket_shapelys_plain_opening(shape, r):
     assert res.as_built.difference(g).area <= TINY * g.area
 
 
+@pytest.mark.parametrize("spec,machine", [("circle:d=0.8", "xy"),
+                                          ("ellipse:major=1.6,minor=0.6", "ttr")])
+def test_coarse_coastline(spec, machine):
+    g = load_coastline("japan_110m", size=100.0, keep=3)
+    res = exact(g, spec, machine, angle_step=30)
+    assert res.as_built.difference(g).area == 0.0
+    lo, hi = res.lost_area_bounds
+    assert 0 < lo <= res.lost_area == hi < 0.1 * g.area
+    assert res.components.count >= 3  # Honshu, Hokkaido, Kyushu stay apart
+    if machine == "xy":
+        plain = g.difference(g.buffer(-0.4, quad_segs=64).buffer(0.4, quad_segs=64)).area
+        check_bounds(res, plain)
+
+
+def test_progress_bar_goes_to_stderr(capsys):
+    res = exact(u_shape(), "rect:w=1,h=0.4", "ttr", angle_step=30, progress=True)
+    out = capsys.readouterr()
+    assert out.out == "" and res.lost_area >= 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["united_kingdom_10m", "greece_10m", "norway_10m"])
+def test_other_coastlines_bracket_the_plain_opening(name):
+    g = load_coastline(name, size=100.0, keep=6)
+    res = exact(g, "circle:d=0.5")
+    plain = g.difference(g.buffer(-0.25, quad_segs=64).buffer(0.25, quad_segs=64)).area
+    check_bounds(res, plain)
+    assert res.as_built.difference(g).area == 0.0
+
+
 @pytest.mark.slow
 def test_japan_coastline_circle_and_ellipse():
     g = load_coastline("japan_10m", size=100.0)
@@ -292,3 +322,6 @@ def test_japan_coastline_circle_and_ellipse():
     check_bounds(res, plain)
     assert res.as_built.difference(g).area == 0.0
     assert res.components.count >= 4
+    ttr = exact(g, "ellipse:major=1.6,minor=0.6", "ttr", angle_step=10)
+    assert ttr.as_built.difference(g).area == 0.0
+    assert ttr.lost_area_bounds[0] <= ttr.lost_area
