@@ -98,6 +98,10 @@ class HostConfig:
     resend_ok_timeout
         A ``Resend`` not followed by ``ok`` within this time is treated as if
         it had been (firmwares that never send it), s.
+    confirm_timeout
+        After a timeout, a refused out-of-order line whose cause is unclear
+        leads to a retransmission only if the requested line is not
+        acknowledged within this time, s.
     max_resends
         Genuine resend requests of the same line in a row before stopping.
     max_timeouts
@@ -133,6 +137,7 @@ class HostConfig:
     reply_timeout: float = 5.0
     long_timeout: float = 1800.0
     resend_ok_timeout: float = 1.0
+    confirm_timeout: float = 0.5
     max_resends: int = 10
     max_timeouts: int = 4
     rx_buffer: int = 127
@@ -149,7 +154,7 @@ class HostConfig:
         object.__setattr__(self, "mode", STREAM_MODES.check(self.mode))
         object.__setattr__(self, "error_policy", EXTRUDER_ERROR_POLICIES.check(self.error_policy))
         for name in ("banner_timeout", "handshake_timeout", "reply_timeout", "long_timeout",
-                     "resend_ok_timeout", "reconnect_timeout"):
+                     "resend_ok_timeout", "confirm_timeout", "reconnect_timeout"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v >= 0):
                 raise InputError(f"{name} must be a non-negative number of seconds; got {v!r}")
@@ -390,6 +395,8 @@ class Host:
         self._emergency = threading.Event()
         self._events: list[str] = []
         self._banner_seen = False
+        self.interrupted = False
+        """True once Ctrl-C (SIGINT) cancelled a stream."""
         self._reset_counters()
 
     # ----------------------------------------------------------------- public control
@@ -594,7 +601,11 @@ class Host:
         self._barrier_ok = False
         self._stop_reason: str | None = None
         self._injected: list[tuple[int, tuple[str, ...]]] = []
-        self._restarted = self._lost = self._fatal = self._failed = False
+        self._restarted = self._fatal = self._failed = False
+        self._suspicious = 0
+        self._error_kind: str | None = None
+        self._deferred: tuple[int, float] | None = None
+        self._timeout_seq = -(10**9)
         self._cancel_done = False
 
     def _send_ahead(self) -> bool:
@@ -683,11 +694,15 @@ class Host:
             return
         n = reply.number
         if n is not None:
-            # ADVANCED_OK names the line: duplicates and stale oks are recognised.
-            if n <= self._acked_reliable:
+            # ADVANCED_OK names the line: duplicates and stale oks are recognised, and a
+            # number never sent is a garbled reply.
+            if n <= self._acked_reliable or n > self._max_sent:
                 return
-            while self._outstanding and self._outstanding[0].number <= n:
-                self._pop_front()
+            if any(s.number <= n for s in self._outstanding):
+                # Lines refused after an earlier error may sit behind newer transmissions.
+                keep = deque(s for s in self._outstanding if s.number > n)
+                self._out_bytes = sum(s.size for s in keep)
+                self._outstanding = keep
             self._set_acked(n, reliable=True)
             return
         s = self._pop_front()
@@ -702,14 +717,51 @@ class Host:
         if number < 1 or number > self._max_sent + 1:
             self._note(f"ignored a resend request for line {number} (never sent)")
             return
-        if number == 1 and self._acked_reliable > 1:
-            # A firmware at line 0 again has restarted (without a banner we saw).
-            self._restarted = True
-            raise _Stop
-        # Everything before the requested line has been accepted; the first transmission
-        # from that line on is the one refused.
+        if number <= self._acked_reliable:
+            # The firmware acknowledged that line: either the request is garbled or the
+            # firmware lost its count (a restart we did not see). Retransmitting would run
+            # lines twice in the second case, so do nothing: a firmware that kept its count
+            # asks again for the right line at the next transmission.
+            self._suspicious += 1
+            if self._suspicious > self.config.max_resends:
+                self._stop_reason = (
+                    f"the firmware keeps asking for line {number} although it acknowledged "
+                    f"line {self._acked_reliable}: it lost its line count (a restart without "
+                    f"a start banner?)")
+                self._failed = True
+                raise _Stop
+            self._note(f"ignored a resend request for line {number}, already acknowledged")
+            return
+        self._suspicious = 0
+        order_error = self._error_kind == "line"
+        self._error_kind = None
+        # Everything before the requested line has been accepted.
         while self._outstanding and self._outstanding[0].number < number:
             self._pop_front()
+        self._set_acked(number - 1, reliable=False)
+        pending = [s for s in self._outstanding if s.number == number]
+        if order_error and pending:
+            # A line out of sequence was refused while a transmission of the requested line
+            # is unanswered. Marlin reads lines in the order sent, so: if the refused line was
+            # sent before that transmission (a duplicate after a retransmission, or a line
+            # behind an earlier refused one), that transmission is still on its way and
+            # rewinding would put the host out of phase for good; if only later lines are
+            # unanswered, the requested line was lost on the wire: rewind.
+            # After a timeout, transmissions the host no longer tracks may still be answered
+            # and the order tells nothing: wait a moment for the pending line's ok instead.
+            newest = pending[-1].seq
+            older = [s for s in self._outstanding if s.number > number and s.seq < newest]
+            newer = [s for s in self._outstanding if s.number > number and s.seq > newest]
+            ghosts = newest <= self._timeout_seq + 2 * self.config.max_window
+            if older or not newer or ghosts:
+                if older:
+                    self._outstanding.remove(older[0])
+                    self._out_bytes -= older[0].size
+                elif ghosts and newer and self._deferred is None:
+                    self._deferred = (number, now + self.config.confirm_timeout)
+                self._stale += 1
+                return
+        # The first transmission from the requested line on is the one refused.
         victim = None
         for i, sent in enumerate(self._outstanding):
             if sent.number >= number:
@@ -717,7 +769,6 @@ class Host:
                 del self._outstanding[i]
                 self._out_bytes -= sent.size
                 break
-        self._set_acked(number - 1, reliable=False)
         if number == self._max_sent + 1:
             self._next = max(self._next, number)
             return  # a duplicate was refused; nothing to retransmit
@@ -725,6 +776,11 @@ class Host:
                 and victim.seq < self._rewind_seq):
             self._stale += 1
             return  # refused because an earlier line was: already being retransmitted
+        self._rewind(number)
+
+    def _rewind(self, number: int) -> None:
+        """Retransmit from line ``number`` (a genuine resend request)."""
+        self._deferred = None
         if number == self._last_genuine:
             self._genuine_count += 1
         else:
@@ -736,9 +792,6 @@ class Host:
                 f"wrong")
             self._failed = True
             raise _Stop
-        if number <= self._acked_reliable:
-            self._note(f"the firmware asked again for line {number}, already acknowledged: "
-                       f"retransmitting (it refuses what it already ran)")
         self._resends += 1
         self._rewind_target = number
         self._rewind_seq = self._seq + 1
@@ -746,6 +799,10 @@ class Host:
 
     def _on_error(self, text: str) -> None:
         if is_protocol_error(text):
+            low = text.lower()
+            # "Line Number is not Last Line Number+1": a line out of sequence was refused.
+            self._error_kind = ("line" if "line number is not" in low or "expected line" in low
+                                else "checksum")
             return  # a Resend follows
         low = text.lower()
         fatal = "halted" in low or "kill" in low or "stopped" in low or text.startswith("!!")
@@ -790,9 +847,10 @@ class Host:
             self._stop_reason = (
                 f"the printer stopped answering (no reply for "
                 f"{self._timeouts_in_row} × {self._current_timeout():g} s)")
-            self._lost = self._failed = True
+            self._failed = True
             raise _Stop
         self.transcript.write("Note", f"timeout: retransmitting from line {first}")
+        self._timeout_seq = self._seq
         self._outstanding.clear()
         self._out_bytes = 0
         self._resend_oks = 0
@@ -807,6 +865,19 @@ class Host:
 
     def _pump_once(self, more: Callable[[], bool], allow_new: bool) -> None:
         """Transmit what the window allows, then handle at most a few replies."""
+        now = time.monotonic()
+        if self._deferred is not None:
+            number, due = self._deferred
+            if self._acked >= number:
+                self._deferred = None
+            elif now >= due:
+                # The line a refusal asked for never got its ok: it was lost after all.
+                for sent in list(self._outstanding):
+                    if sent.number >= number:
+                        self._outstanding.remove(sent)
+                        self._out_bytes -= sent.size
+                        break
+                self._rewind(number)
         while self._next < len(self._frames) or (allow_new and more()):
             if not self._can_transmit(len(self._frames[self._next])):
                 break
@@ -815,6 +886,8 @@ class Host:
         deadline = self._last_rx + self._current_timeout()
         if self._resend_oks:
             deadline = min(deadline, self._resend_ok_deadline)
+        if self._deferred is not None:
+            deadline = min(deadline, self._deferred[1])
         text = self._readline(min(deadline, now + 0.1))
         now = time.monotonic()
         if text is not None:
@@ -911,16 +984,16 @@ class Host:
                         continue
                     self._pump_once(self._more, allow_new=True)
                 except _Stop:
-                    if (self._restarted or self._lost) and not self._fatal:
-                        self._failed = False
-                        if self._reconnect():
+                    if self._restarted and not self._fatal:
+                        # The firmware restarted under us (its banner came): same link.
+                        if self._reconnect(reopen=False):
                             continue
                         self._failed = True
                     failure = self._stop_reason or "stopped"
                     break
                 except (serial.SerialException, OSError) as exc:
                     self._note(f"the link failed: {exc}")
-                    if self._reconnect():
+                    if self._reconnect(reopen=True):
                         continue
                     failure = f"the link to the printer failed ({exc}) and could not be reopened"
                     break
@@ -1060,31 +1133,44 @@ class Host:
             self._inject(restore_commands(state, home_xy=False), at)
         self._note("resumed")
 
-    def _reconnect(self) -> bool:
-        """Reopen the link; restore the state of a restarted firmware. True: streaming goes on."""
-        timeout = self.config.reconnect_timeout
-        if timeout <= 0:
-            return False
-        self._reconnects += 1
-        self._note("the link was lost: reconnecting")
-        if self._port is not None:
-            with contextlib.suppress(Exception):
-                self._port.close()
+    def _reopen(self, timeout: float) -> bool:
+        """Close and reopen the same port object (a pyserial URL keeps its endpoint)."""
         end = time.monotonic() + timeout
         while True:
             try:
-                self._port = open_port(self.port_name, baud=self.config.baud)
+                with contextlib.suppress(Exception):
+                    self._port.close()
+                self._port.open()
                 self._reader = LineReader(self._port)
-                break
-            except PrintabilityOSError:
+                return True
+            except (serial.SerialException, OSError, ValueError):
                 if time.monotonic() >= end:
-                    self._stop_reason = (f"the link was lost and the port could not be reopened "
-                                         f"within {timeout:g} s")
                     return False
                 time.sleep(0.25)
+
+    def _reconnect(self, *, reopen: bool) -> bool:
+        """Resume after the link dropped (``reopen``) or the firmware restarted.
+
+        Returns True when streaming can go on: the same firmware kept its line
+        count (retransmit from the first unacknowledged line), or it restarted
+        and its state was restored (temperatures, position, rotary angle, E).
+        """
+        timeout = self.config.reconnect_timeout
+        if timeout <= 0:
+            if self._stop_reason is None:
+                self._stop_reason = ("the link was lost" if reopen else
+                                     "the firmware restarted (start banner) in the middle of "
+                                     "the print")
+            return False
+        self._reconnects += 1
+        if reopen:
+            self._note("the link was lost: reconnecting")
+            if not self._reopen(timeout):
+                self._stop_reason = (f"the link was lost and the port could not be reopened "
+                                     f"within {timeout:g} s")
+                return False
         restarted = self._restarted or self._wait_banner(self.config.banner_timeout)
         self._restarted = False
-        self._lost = False
         self._timeouts_in_row = 0
         self._outstanding.clear()
         self._out_bytes = 0
@@ -1192,6 +1278,7 @@ class Host:
             return None
 
         def handler(signum: int, frame_: Any) -> None:
+            self.interrupted = True
             if self._cancel.is_set():
                 self._emergency.set()
             self._cancel.set()

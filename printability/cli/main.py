@@ -22,6 +22,7 @@ __all__ = ["app", "main"]
 # Subcommand modules, in help order. Each defines register(app: typer.Typer).
 SUBCOMMANDS: tuple[str, ...] = (
     "printability.cli.analyze",
+    "printability.cli.stream",
     "printability.cli.simulate",
     "printability.cli.postprocess",
 )
