@@ -31,10 +31,12 @@ __all__ = [
     "erode_words",
     "extract_runs",
     "label_runs",
+    "near_needy",
     "overlap_pairs",
     "pack_bits",
     "table_padding",
     "unpack_bits",
+    "update_tables",
 ]
 
 ALL_ONES = np.uint64(0xFFFFFFFFFFFFFFFF)
@@ -308,45 +310,46 @@ def erode_words(tables, pad_rows, pad_words, runs, band_i, band_w, last_mask, ou
             out_vals[b] = acc
 
 
-@nb.njit(cache=True, inline="always")
-def _run_or(bits, i, c, lev, second, nw):  # pragma: no cover - numba
-    """OR of the 2^lev-runs at c and c + second (≥ 0) of row i, from the bits alone.
+@nb.njit(cache=True)
+def update_tables(bits, tables, pad_rows, pad_words, band_i, band_w, op_and
+                  ):  # pragma: no cover - numba
+    """Refresh doubling tables after the listed words of ``bits`` changed.
 
-    The 128-bit window [c, c + 128) is doubled in registers (lev steps), so no
-    table is needed; valid for runs up to 65 pixels.
+    A level-l entry of word w (2^l ≤ 64) depends on level-0 words w and w + 1
+    only, so the words to redo are the listed ones and their left
+    neighbours, level by level. Cost O(levels · listed words).
     """
-    w = c >> 6
-    s = np.uint64(c & 63)
-    w0 = bits[i, w] if 0 <= w < nw else _U0
-    w1 = bits[i, w + 1] if 0 <= w + 1 < nw else _U0
-    w2 = bits[i, w + 2] if 0 <= w + 2 < nw else _U0
-    lo = (w0 >> s) | ((w1 << _U1) << (np.uint64(63) - s))
-    hi = (w1 >> s) | ((w2 << _U1) << (np.uint64(63) - s))
-    for t in range(lev):
-        m = np.uint64(1 << t)
-        lo |= (lo >> m) | (hi << (np.uint64(64) - m))
-        hi |= hi >> m
-    if second < 0:
-        return lo
-    q = np.uint64(second)
-    if second == 0:
-        return lo
-    return lo | (lo >> q) | (hi << (np.uint64(64) - q))
+    nlev = tables.shape[0]
+    for b in range(band_i.shape[0]):
+        tables[0, band_i[b] + pad_rows, band_w[b] + pad_words] = bits[band_i[b], band_w[b]]
+    for lev in range(1, nlev):
+        sh = np.uint64(1 << (lev - 1))
+        back = np.uint64(64 - (1 << (lev - 1)))
+        for b in range(band_i.shape[0]):
+            i = band_i[b] + pad_rows
+            for w in (band_w[b] + pad_words - 1, band_w[b] + pad_words):
+                cur = tables[lev - 1, i, w]
+                v = (cur >> sh) | (tables[lev - 1, i, w + 1] << back)
+                if op_and:
+                    tables[lev, i, w] = cur & v
+                else:
+                    tables[lev, i, w] = cur | v
 
 
 @nb.njit(cache=True)
-def dilate_words(bits, runs, target, union):  # pragma: no cover - numba
-    """OR into ``union`` the dilation of ``bits`` (OR over kernel runs) on the pixels of
-    ``target`` not yet in ``union``.
+def dilate_words(tables, pad_rows, pad_words, runs, target, union):  # pragma: no cover - numba
+    """OR into ``union`` the dilation (OR over kernel runs, reading OR-tables) on the
+    pixels of ``target`` not yet in ``union``.
 
-    ``runs[r] = (dy, a, level, second)`` as for :func:`erode_words`, but read
-    from ``bits`` directly (runs must be at most 65 pixels long). Words whose
-    target pixels are all in ``union`` already are skipped (a union over
-    angles needs nothing more there); a word stops as soon as it covers every
-    missing pixel. Returns the number of words computed.
+    ``runs[r] = (dy, a, level, second)`` as for :func:`erode_words` (runs of
+    at most 64 pixels, so :func:`update_tables` can keep the tables fresh).
+    Words whose target pixels are all in ``union`` already are skipped (a
+    union over angles needs nothing more there); a word stops as soon as it
+    covers every missing pixel. Returns the number of words computed.
     """
     ny, nw = union.shape
     nr = runs.shape[0]
+    cbase = pad_words * 64
     done = 0
     for i in range(ny):
         for w in range(nw):
@@ -356,14 +359,45 @@ def dilate_words(bits, runs, target, union):  # pragma: no cover - numba
             done += 1
             acc = _U0
             for r in range(nr):
-                row = i + runs[r, 0]
-                if row < 0 or row >= ny:
-                    continue
-                acc |= _run_or(bits, row, w * 64 + runs[r, 1], runs[r, 2], runs[r, 3], nw)
+                row = i + pad_rows + runs[r, 0]
+                c = cbase + w * 64 + runs[r, 1]
+                lev = runs[r, 2]
+                v = _read(tables, lev, row, c)
+                if runs[r, 3] >= 0:
+                    v |= _read(tables, lev, row, c + runs[r, 3])
+                acc |= v
                 if (acc & tgt) == tgt:
                     break
             union[i, w] |= acc & tgt
     return done
+
+
+@nb.njit(cache=True)
+def near_needy(target, union, band_i, band_w, ry, rw):  # pragma: no cover - numba
+    """Indices of the band words within (ry rows, rw words) of a word whose target pixels
+    are not all in ``union`` yet: the only P words a dilation can still read.
+
+    Cost O(ny·nw + band) with a 2-D prefix sum over words.
+    """
+    ny, nw = union.shape
+    pre = np.zeros((ny + 1, nw + 1), np.int32)
+    for i in range(ny):
+        run = 0
+        for w in range(nw):
+            if (target[i, w] & ~union[i, w]) != _U0:
+                run += 1
+            pre[i + 1, w + 1] = pre[i, w + 1] + run
+    out = np.empty(band_i.shape[0], np.int64)
+    m = 0
+    for b in range(band_i.shape[0]):
+        i0 = max(band_i[b] - ry, 0)
+        i1 = min(band_i[b] + ry + 1, ny)
+        w0 = max(band_w[b] - rw, 0)
+        w1 = min(band_w[b] + rw + 1, nw)
+        if pre[i1, w1] - pre[i0, w1] - pre[i1, w0] + pre[i0, w0] > 0:
+            out[m] = b
+            m += 1
+    return out[:m]
 
 
 @nb.njit(cache=True)
@@ -379,6 +413,10 @@ def count_bits_into(count, base, band_i, band_w, vals, n_angles):  # pragma: no 
     for i in range(ny):
         for w in range(nw):
             v = base[i, w]
+            if v == ALL_ONES and w * 64 + 64 <= nx:
+                for t in range(64):
+                    count[i, w * 64 + t] = n16
+                continue
             while v != _U0:
                 j = w * 64 + trailing_zeros(v)
                 if j < nx:
@@ -403,9 +441,16 @@ def count_bits_into(count, base, band_i, band_w, vals, n_angles):  # pragma: no 
 
 @nb.njit(cache=True)
 def extract_runs(bits, nx):  # pragma: no cover - numba
-    """Horizontal runs of set pixels: arrays (row, start, stop) sorted by row then start."""
+    """Horizontal runs of set pixels: arrays (row, start, stop) sorted by row then start.
+
+    Whole words of 0s or 1s are skipped; inside a mixed word the next transition
+    is found with a trailing-zero count. Cost O(ny·nw + runs).
+    """
     ny, nw = bits.shape
     n = 0
+    rr = np.empty(0, np.int32)
+    rs = np.empty(0, np.int32)
+    re = np.empty(0, np.int32)
     for pass_ in range(2):
         if pass_ == 1:
             rr = np.empty(n, np.int32)
@@ -421,19 +466,26 @@ def extract_runs(bits, nx):  # pragma: no cover - numba
                     continue
                 if v == ALL_ONES and inrun:
                     continue
-                for bit in range(64):
-                    on = ((v >> np.uint64(bit)) & _U1) == _U1
-                    j = w * 64 + bit
-                    if on and not inrun:
-                        inrun = True
-                        start = j
-                    elif not on and inrun:
-                        inrun = False
+                pos = 0
+                while pos < 64:
+                    if inrun:
+                        z = (~v) >> np.uint64(pos)
+                        if z == _U0:
+                            break
+                        pos += trailing_zeros(z)
                         if pass_ == 1:
                             rr[n] = i
                             rs[n] = start
-                            re[n] = j
+                            re[n] = w * 64 + pos
                         n += 1
+                        inrun = False
+                    else:
+                        o = v >> np.uint64(pos)
+                        if o == _U0:
+                            break
+                        pos += trailing_zeros(o)
+                        start = w * 64 + pos
+                        inrun = True
             if inrun:
                 if pass_ == 1:
                     rr[n] = i
