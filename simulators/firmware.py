@@ -471,16 +471,22 @@ class Firmware:
     def _start_block(self, t: float) -> None:
         b = self._planner[0]
         prev = self._prev_block
-        entry = prev.exit_speed if prev is not None and t == self._exec_end else 0.0
+        self._entry = prev.exit_speed if prev is not None and t == self._exec_end else 0.0
+        self._exec_start = t
+        self._time_block(b)
+        self._prev_block = b
+
+    def _time_block(self, b: Block) -> None:
+        """Duration of the executing block from its entry speed and the next block (if any)."""
         nxt = self._planner[1] if len(self._planner) > 1 else None
         b.exit_speed = junction_speed(b, nxt, self.fw.junction_deviation) if nxt else 0.0
+        self.stats.motion_time -= b.duration
         if b.fixed_time is not None:
             b.duration = b.fixed_time
         else:
-            b.duration = trapezoid_time(b.length, entry, b.exit_speed, b.speed, b.accel)
+            b.duration = trapezoid_time(b.length, self._entry, b.exit_speed, b.speed, b.accel)
         self.stats.motion_time += b.duration
-        self._exec_end = t + b.duration
-        self._prev_block = b
+        self._exec_end = self._exec_start + b.duration
 
     def _push_block(self, b: Block) -> None:
         idle = not self._planner
@@ -489,6 +495,10 @@ class Firmware:
         if idle:
             self._prev_block = None
             self._start_block(self.now)
+        elif len(self._planner) == 2:
+            # The executing block was planned to stop; with a successor it may keep its
+            # speed through the junction (the planner re-plans its tail).
+            self._time_block(self._planner[0])
 
     # ================================================================ execution
     def _execute(self) -> bool:
@@ -600,7 +610,7 @@ class Firmware:
             m.set_position(cmd)
             return
         if code in ("G93", "G94"):
-            if code == "G93" and m.machine.feed_policy != "inverse_time":
+            if code == "G93" and m.machine.feed_policy != "inverse-time":
                 self._unknown(cmd)
             else:
                 m.inverse_time = code == "G93"

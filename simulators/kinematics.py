@@ -13,7 +13,7 @@ Feed semantics (:data:`printability.options.FEED_POLICIES`):
     same time. A rotary-only move reads F as degrees/min (Marlin ≥ 2.1).
 ``euclidean``
     Degrees count as millimetres in the move length (older firmwares).
-``inverse_time``
+``inverse-time``
     Under G93, F is 1/minutes: each move lasts 60/F seconds.
 
 Move time: a trapezoid per block (constant acceleration up to the nominal

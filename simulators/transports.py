@@ -205,20 +205,22 @@ class PtyServer(_Server):
                 raise PrintabilityOSError(f"{symlink}: cannot create the port link "
                                           f"({exc.strerror})") from None
         self._pacer = _Pacer(link.config.baud if link.real else None)
+        # True while a host has the port open. A close and reopen faster than the poll
+        # interval (~10 ms) is not seen as a reset.
+        self.connected = False
 
     def _run(self) -> None:
         link, poller = self.link, select.poll()
         poller.register(self.master, select.POLLIN)
-        connected = False
         while not self._stop.is_set():
             events = poller.poll(max(link.wait_time(), 0.001) * 1000)
             hup = any(ev & select.POLLHUP for _, ev in events)
             if hup:
-                connected = False
+                self.connected = False
                 time.sleep(0.01)  # nobody has the port open: POLLHUP is level-triggered
                 continue
-            if not connected:
-                connected = True
+            if not self.connected:
+                self.connected = True
                 link.connect()
             if any(ev & select.POLLIN for _, ev in events):
                 try:

@@ -258,3 +258,54 @@ def test_random_bytes_never_crash(data):
         assert out == ""
     else:
         assert "ok T:" in out
+
+
+def _motion_time(cmds: list[str], **kw) -> float:
+    fw = _fw(**kw)
+    _say(fw, "".join(c + "\n" for c in cmds).encode())
+    fw.drain()
+    return fw.stats.motion_time
+
+
+@pytest.mark.parametrize(("cmds", "expected"), [
+    # 100 mm at 100 mm/s, 1000 mm/s²: 0.1 s up, 0.1 s down, 90 mm cruise.
+    (["G1 X100 F6000"], 1.1),
+    # Collinear blocks keep their speed through the junction: as one 200 mm move.
+    (["G1 X100 F6000", "G1 X200"], 2.1),
+    # A reversal stops: two separate trapezoids.
+    (["G1 X100 F6000", "G1 X0"], 2.2),
+    # Too short to reach the feed: triangle profile, 2·sqrt(L/a).
+    (["G1 X1 F6000"], 2 * math.sqrt(1 / 1000)),
+    # Rotary only: F in degrees/min (Marlin 2.1), rotary acceleration 3000 deg/s².
+    (["G1 C360 F3600"], 60 / 3000 + 360 / 60 - 60 / 3000 + 60 / 3000),
+])
+def test_trapezoid_motion_time(cmds, expected):
+    assert _motion_time(["G28", *cmds], machine="ttr:letter=C") == pytest.approx(expected)
+
+
+def _machine_file(tmp_path, policy: str) -> str:
+    path = tmp_path / f"m_{policy}.toml"
+    path.write_text(f'[machine]\nname = "t"\nkind = "ttr"\n[bed]\nx = [0.0, 200.0]\n'
+                    f'y = [0.0, 200.0]\n[firmware]\nflavor = "marlin"\n'
+                    f'feed_policy = "{policy}"\nplanner_buffer = 5\nacceleration = 2000.0\n')
+    return str(path)
+
+
+def test_feed_policies(tmp_path):
+    # xy: F is the XY speed; the rotary axis follows in the same time.
+    xy = _motion_time(["G28", "G1 X100 C90 F6000"], machine=_machine_file(tmp_path, "xy"))
+    assert xy == pytest.approx(0.05 + 0.05 + 95 / 100)  # 2.5 mm ramps at 2000 mm/s²
+    # euclidean: degrees count as mm in the length.
+    eu = _motion_time(["G28", "G1 X100 C90 F6000"],
+                      machine=_machine_file(tmp_path, "euclidean"))
+    length = math.hypot(100, 90)
+    assert eu == pytest.approx(0.1 + (length - 5) / 100)
+    # inverse time: G93 F2 = the move lasts half a minute, whatever its length.
+    it = _motion_time(["G28", "G93", "G1 X100 C90 F2", "G94"],
+                      machine=_machine_file(tmp_path, "inverse-time"))
+    assert it == pytest.approx(30.0)
+    # The profile's [firmware] table sets the buffers.
+    fw = _fw(machine=_machine_file(tmp_path, "xy"))
+    assert fw.fw.planner_buffer == 5 and fw.fw.acceleration == 2000.0
+    out = _say(fw, b"G93\n")
+    assert out.startswith('echo:Unknown command: "G93"')
