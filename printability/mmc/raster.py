@@ -347,10 +347,10 @@ def _kernels(nozzle: Nozzle, angles: np.ndarray, h: float, delta: float, radius:
 
 def estimate_memory(grid: Grid, n_angles: int, radius: int, *, band_words: int | None = None
                     ) -> int:
-    """Peak bytes the raster engine needs on ``grid`` (before the per-angle masks are sized).
+    """Peak bytes the raster engine needs on ``grid``.
 
     ``band_words`` (when known) sizes the stored per-angle words; otherwise
-    the worst case (every word) is assumed.
+    the worst case (every word at every angle) is assumed.
     """
     npx = grid.nx * grid.ny
     nw = (grid.nx + 63) // 64
@@ -395,7 +395,8 @@ def prepare_raster(region: BaseGeometry, nozzle: Nozzle, machine: Machine, *,
     nx_est = math.ceil((maxx - minx + 2 * margin) / h) + 1
     ny_est = math.ceil((maxy - miny + 2 * margin) / h) + 1
     fake = Grid(0.0, 0.0, h, max(nx_est, 1), max(ny_est, 1))
-    _check_memory(estimate_memory(fake, len(angles), radius), settings,
+    # the per-angle words are sized (and checked again) once the band is known
+    _check_memory(estimate_memory(fake, len(angles), radius, band_words=0), settings,
                   f"a {nx_est} × {ny_est} grid at h = {h:g} mm with {len(angles)} angles")
     grid = Grid.covering(region.bounds, h, margin=margin)
     cls, cov = rasterize_region(region, grid)
@@ -421,8 +422,12 @@ def _last_mask(nx: int) -> np.uint64:
 
 
 def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dilate_k: np.ndarray,
-                  radius: int, nx: int, *, store: bool, tick: Callable[[], None]) -> _PassResult:
-    """∪_k (inp ⊖ erode_k[k]) ⊕ dilate_k[k], ∩ target, on packed rows (see module docstring)."""
+                  radius: int, nx: int, *, store: bool, tick: Callable[[], None],
+                  check: Callable[[int], None] | None = None) -> _PassResult:
+    """∪_k (inp ⊖ erode_k[k]) ⊕ dilate_k[k], ∩ target, on packed rows (see module docstring).
+
+    ``check(band_words)`` is called before the per-angle words are allocated.
+    """
     ny, nw = inp.shape
     last = _last_mask(nx)
     n = erode_k.shape[0]
@@ -459,6 +464,8 @@ def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dila
     del maybe
     band_i = (band // nw).astype(np.int64)
     band_w = (band % nw).astype(np.int64)
+    if check is not None:
+        check(len(band))
     values = np.empty((n if store else 0, len(band)), np.uint64)
     work = deep.copy()
     _k.build_tables(work, t_or, pr, pw, False, 0, ny)
@@ -673,11 +680,12 @@ def mmc_raster(region: MultiPolygon, nozzle: Nozzle, machine: Machine, *,
         # a pixel wholly inside a closed footprint makes it touch its 8 neighbours, which
         # must then be inside pixels: S_inner ⊆ I ⊖ (3×3 box)
         core = _k.pack_bits(_erode3(cls == 3))
-        inner = _opening_pass(inside, core, prob.touch, prob.full, prob.radius, grid.nx,
-                              store=True, tick=tick)
+        inner = _opening_pass(
+            inside, core, prob.touch, prob.full, prob.radius, grid.nx, store=True, tick=tick,
+            check=lambda words: _check_memory(
+                estimate_memory(grid, n, prob.radius, band_words=words), settings,
+                f"the motion restriction at {n} angles ({words:,} words vary with the angle)"))
         del core
-        _check_memory(estimate_memory(grid, n, prob.radius, band_words=len(inner.band_i)),
-                      settings, "the per-angle motion restriction")
         some = _k.pack_bits(cls >= 1)
         outer = _opening_pass(some, some, prob.need, prob.dil, prob.radius, grid.nx,
                               store=False, tick=tick)

@@ -255,6 +255,21 @@ def test_bad_input_and_memory_refusal():
         raster(Polygon(), "circle:d=0.2")
 
 
+def test_memory_refusal_for_the_per_angle_masks():
+    """The grid fits but the masks of many angles do not: refused before they are allocated."""
+    from printability.mmc.raster import estimate_memory
+
+    g = CATALOGUE["hexagon"]
+    settings_ = Settings(resolution=0.02, angle_step=1.0)
+    prob = prepare_raster(as_region(g), parse_nozzle("ellipse:major=1,minor=0.3"),
+                          parse_machine("ttr"), settings=settings_)
+    grid = Grid(0.0, 0.0, 0.02, prob.grid.nx + 2, prob.grid.ny + 2)
+    limit = estimate_memory(grid, len(prob.angles), prob.radius, band_words=0) + 1000
+    with pytest.raises(ResourceError, match="motion restriction at 180 angles"):
+        raster(g, "ellipse:major=1,minor=0.3", "ttr", h=0.02, angle_step=1.0,
+               max_memory=limit)
+
+
 def test_progress_bar_runs(capsys):
     res = raster(box(0, 0, 2, 1), "ellipse:major=0.6,minor=0.2", "ttr:step=45", h=0.05,
                  progress=True)
