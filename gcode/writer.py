@@ -361,18 +361,25 @@ class Emitter:
         self.lines.append(" ".join(words))
         self.x, self.y = x, y
 
+    def _e_only_feed(self, feed: float, length: float) -> str:
+        o = self.options
+        if o.feed_policy == "inverse-time":
+            self._feed_written = None
+            return "F" + format_number(feed / max(length, 1e-9), 4)
+        self._feed_written = None  # a retraction feed must not become the XY feed
+        return "F" + format_number(feed, o.feed_decimals)
+
     def retract(self, length: float, *, feed: float) -> None:
-        """Pull the filament back by ``length`` mm (negative E, no motion)."""
+        """Pull the filament back by ``length`` mm (negative E, no motion), at ``feed`` mm/min."""
         if length > 0:
             self.lines.append(" ".join(["G1", self._e_word(-length),
-                                        *self._feed_word(feed, 0.0, 0.0, force=True)]))
-            self._feed_written = None  # a retraction feed must not become the XY feed
+                                        self._e_only_feed(feed, length)]))
 
     def unretract(self, length: float, *, feed: float) -> None:
+        """Push the filament forward again by ``length`` mm."""
         if length > 0:
             self.lines.append(" ".join(["G1", self._e_word(length),
-                                        *self._feed_word(feed, 0.0, 0.0, force=True)]))
-            self._feed_written = None
+                                        self._e_only_feed(feed, length)]))
 
 
 def edit_line(raw: bytes, *, replace: Mapping[str, str] | None = None,

@@ -48,11 +48,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import shapely
-from shapely.geometry import MultiLineString
 
 from gcode import NON_PART_CATEGORIES, parse_gcode
-from gcode.rotary import nearest_equivalent, width_from_e
+from gcode.rotary import nearest_equivalent
 from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
 from printability.errors import FileFormatError, InputError, PrintabilityOSError
@@ -70,7 +68,6 @@ __all__ = [
     "PostprocessOptions",
     "PostprocessResult",
     "already_processed",
-    "layer_targets",
     "postprocess_bytes",
     "postprocess_file",
     "settings_from_environment",
@@ -256,53 +253,6 @@ def _part_mask(g) -> np.ndarray:
     return m["is_extrusion"] & part & ~m["wipe"] & (m["layer"] >= 0)
 
 
-def layer_targets(
-    segments: np.ndarray, widths: np.ndarray, layer_of: np.ndarray, n_layers: int,
-    *, quad_segs: int = 16,
-) -> list:
-    """Per layer, the union of the chords swept by a disk of half their width.
-
-    Parameters
-    ----------
-    segments
-        Chords (:data:`gcode.arcs.SEGMENT_DTYPE`) of the part's extrusions.
-    widths
-        Planned width of each chord, mm.
-    layer_of
-        Layer index of each chord.
-    n_layers
-        Number of layers.
-    quad_segs
-        Segments per quarter circle of the round caps (16: the polygon is
-        within 0.02 % of the radius of the true shape).
-
-    Returns
-    -------
-    list
-        A shapely geometry per layer (None for a layer without part extrusions).
-    """
-    out: list = [None] * n_layers
-    if len(segments) == 0:
-        return out
-    order = np.argsort(layer_of, kind="stable")
-    bounds = np.searchsorted(layer_of[order], np.arange(n_layers + 1))
-    for k in range(n_layers):
-        idx = order[bounds[k]:bounds[k + 1]]
-        if idx.size == 0:
-            continue
-        s = segments[idx]
-        w = np.round(widths[idx], 4)
-        pieces = []
-        for wv in np.unique(w):
-            sel = w == wv
-            lines = np.stack([np.column_stack([s["x0"][sel], s["y0"][sel]]),
-                              np.column_stack([s["x1"][sel], s["y1"][sel]])], axis=1)
-            mls = MultiLineString(list(lines))
-            pieces.append(mls.buffer(float(wv) / 2.0, quad_segs=quad_segs))
-        out[k] = shapely.union_all(pieces) if len(pieces) > 1 else pieces[0]
-    return out
-
-
 # ----------------------------------------------------------------- the rewrite
 
 
@@ -377,6 +327,7 @@ def postprocess_bytes(
     moves = g.moves
     lines = g.lines
     n_layers = len(g.layers)
+    file_heights = np.where(np.isfinite(g.layers["height"]), g.layers["height"], 0.0)
     heights = g.layers["height"].copy() if n_layers else np.zeros(0)
     if options.layer_height is not None:
         heights[:] = options.layer_height
@@ -386,6 +337,12 @@ def postprocess_bytes(
         raise FileFormatError(path, "the file uses inches (G20); only millimetre G-code is "
                               "supported", line=int(moves["line"][(moves["flags"] & 4) > 0][0]) + 1)
 
+    quad_segs = 32
+    # A round nozzle no larger than the one the file was sliced for lays the slicer's
+    # own beads: each is inside G by construction (G is their union), so nothing moves.
+    slicer_d = envs.get("nozzle_diameter") or _config_value(data, "nozzle_diameter")
+    narrow_beads = bool(nozzle.is_round and (slicer_d is None
+                                             or 2 * nozzle.footprints[0].a <= slicer_d + 1e-9))
     period = nozzle.symmetry_period
     turns = machine.kind == "ttr" and period != 0.0
     wopts = WriterOptions(letter=letter, period=period if turns else 0.0,
@@ -400,12 +357,14 @@ def postprocess_bytes(
 
     part = _part_mask(g)
     part_idx = np.flatnonzero(part)
-    seg = g.segments(moves=moves[part_idx]) if part_idx.size else np.zeros(0)
-    if part_idx.size:
+    seg = g.segments(moves=moves[part_idx]) if part_idx.size and not narrow_beads else \
+        np.zeros(0, dtype=[("x0", "f8"), ("y0", "f8"), ("x1", "f8"), ("y1", "f8"),
+                           ("e", "f8"), ("move", "i8")])
+    if part_idx.size and not narrow_beads:
         seg_move = part_idx[seg["move"]]  # index into g.moves
-        widths = _segment_widths_simple(seg, moves[seg_move], heights, float(fd))
+        widths = _planned_widths(g, seg, seg_move, file_heights, float(fd))
         seg_layer = moves["layer"][seg_move]
-        targets = layer_targets(seg, widths, seg_layer, n_layers)
+        targets = _layer_targets(g, float(fd), quad_segs)
     else:
         seg_move = np.zeros(0, np.int64)
         widths = np.zeros(0)
@@ -437,7 +396,8 @@ def postprocess_bytes(
             chained[1:] = same
         plan = plan_orientations(p0, p1, widths[idx], targets[k], nozzle, machine,
                                  options=options.orientation, previous=prev,
-                                 prepared_target=tgt, chained=chained)
+                                 prepared_target=tgt, chained=chained,
+                                 narrow_beads=narrow_beads)
         seg_angle[idx] = plan.angle
         seg_fold[idx] = plan.fold
         seg_width_laid[idx] = plan.width
@@ -473,6 +433,9 @@ def postprocess_bytes(
         f"tolerance = {options.tolerance:g} mm; E policy = {e_policy}; layer targets from the "
         "slicer's part extrusions",
     ]
+    if narrow_beads:
+        notes.append("round nozzle no larger than the slicer's: it lays the slicer's own beads, "
+                     "every move is kept as it is")
     head = header_lines(version=__version__, nozzle=nozzle.spec, machine=machine.spec,
                         options=wopts, mode="postprocessed", summary=summary, notes=notes)
     first_cmd = _first_command_line(lines)
@@ -492,18 +455,49 @@ def postprocess_bytes(
     return result_bytes, res
 
 
-def _segment_widths_simple(seg, mv, heights, filament_diameter) -> np.ndarray:
-    """Planned width of each chord: the slicer's ``;WIDTH:``, or inverted from E."""
-    width = mv["width"].astype(float).copy()
-    need = ~np.isfinite(width) | (width <= 0)
-    if need.any():
+def _layer_targets(g, filament_diameter: float, quad_segs: int) -> list:
+    """Per layer, G as :mod:`printability.sources.gcode` rebuilds it (None: no part bead).
+
+    The same reconstruction as ``printability analyze`` on the same file, so
+    the post-processor and the analysis agree on what the part is.
+    """
+    from printability.settings import Settings
+    from printability.sources.gcode import layer_regions
+
+    out: list = [None] * len(g.layers)
+    for li, geom, _facts in layer_regions(g, settings=Settings(quad_segs=quad_segs),
+                                          filament_diameter=filament_diameter):
+        out[li] = geom if geom is not None and not geom.is_empty else None
+    return out
+
+
+def _planned_widths(g, seg, seg_move, heights, filament_diameter) -> np.ndarray:
+    """The width of every chord as :func:`printability.sources.gcode.layer_regions` sees it.
+
+    The slicer's ``;WIDTH:``; otherwise the width inverted from E over the
+    whole move (stadium model, rectangle for Cura files), rounded to 1 µm and
+    clipped at three times the file's median, exactly as the layer targets
+    were built: a round nozzle laying the planned width then fits G by
+    construction.
+    """
+    from printability.sources.gcode import bead_widths
+
+    m = g.moves
+    width = m["width"][seg_move].astype(float).copy()
+    derived = ~np.isfinite(width)
+    if derived.any():
         length = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"])
-        h = heights[np.maximum(mv["layer"], 0)]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            est = width_from_e(seg["e"] / length, h, filament_diameter)
-        est = np.where(np.isfinite(est) & (est > 0), est, np.nanmedian(width[~need])
-                       if (~need).any() else 0.4)
-        width[need] = est[need]
+        uniq, inv = np.unique(seg_move, return_inverse=True)
+        l_move = np.bincount(inv, weights=length, minlength=len(uniq))
+        model = "rectangle" if g.slicer == "Cura" else "stadium"
+        lay = np.maximum(m["layer"][seg_move], 0)
+        w = np.round(bead_widths(m["e"][seg_move], l_move[inv], heights[lay],
+                                 filament_diameter=filament_diameter, model=model), 3)
+        width[derived] = w[derived]
+        dw = w[derived]
+        dw = dw[np.isfinite(dw) & (dw > 0)]
+        if dw.size:
+            width[derived] = np.minimum(width[derived], 3.0 * float(np.median(dw)))
     return width
 
 

@@ -24,6 +24,7 @@ G):
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -269,6 +270,15 @@ def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1
     return ok
 
 
+@functools.lru_cache(maxsize=32)
+def _width_table_cached(nozzle: Nozzle, step: float) -> tuple[np.ndarray, np.ndarray]:
+    beta = np.arange(0.0, 360.0, step)
+    width = np.array([nozzle.bead_width(0.0, b) for b in beta])
+    beta.setflags(write=False)
+    width.setflags(write=False)
+    return beta, width
+
+
 def width_table(nozzle: Nozzle, *, step: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """Bead width as a function of the orientation relative to the motion.
 
@@ -280,9 +290,7 @@ def width_table(nozzle: Nozzle, *, step: float = 0.5) -> tuple[np.ndarray, np.nd
         Bead width, mm (``bead_width(0, beta)``; the width only depends on
         the difference).
     """
-    beta = np.arange(0.0, 360.0, step)
-    width = np.array([nozzle.bead_width(0.0, b) for b in beta])
-    return beta, width
+    return _width_table_cached(nozzle, step)
 
 
 def candidate_orientations(machine: Machine, nozzle: Nozzle, *, step: float) -> np.ndarray:
@@ -326,8 +334,9 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
     n = len(direction)
     period = nozzle.symmetry_period
     per = period if period else 360.0
-    beta = np.arange(0.0, 180.0, 0.5)
-    wtab = np.array([nozzle.bead_width(0.0, b) for b in beta])
+    beta_all, wtab_all = width_table(nozzle)
+    half = beta_all < 180.0  # the width repeats every 180°
+    beta, wtab = beta_all[half], wtab_all[half]
     w = np.where(np.isfinite(widths), widths, wtab.min())
     b1 = np.empty(n)
     b2 = np.empty(n)
@@ -376,6 +385,7 @@ def plan_orientations(
     previous: float = 0.0,
     prepared_target: BaseGeometry | None = None,
     chained: np.ndarray | None = None,
+    narrow_beads: bool = False,
 ) -> Plan:
     """Choose an orientation for every extruding move of one layer.
 
@@ -389,16 +399,19 @@ def plan_orientations(
         The layer target G (shapely).
     nozzle, machine
         What prints it. An XY machine or a round nozzle never turns: the
-        only orientation is 0. A round nozzle lays the planned width when the
-        slicer planned a bead narrower than the orifice (bridges, gap fill:
-        the slicer's own model of its nozzle), so its footprint is the disk
-        of that width.
+        only orientation is 0.
     options
         Tolerances (see :class:`OrientationOptions`).
     previous
         Orientation before the first move, degrees.
     prepared_target
         G already grown by the tolerance and prepared (to share between calls).
+    narrow_beads
+        A round nozzle lays the planned width where the plan is narrower than
+        the orifice (the slicer's own model of *its* nozzle: bridges and gap
+        fill are under-extruded on purpose), so its footprint there is the
+        disk of the planned width. Only true for the nozzle the file was
+        sliced for (or a smaller one); otherwise the whole orifice counts.
     chained
         (n,) True where a move starts where the previous one ended, without
         anything in between: the turn to its orientation may then be made
@@ -422,7 +435,7 @@ def plan_orientations(
     per = period if turns else 360.0
     direction = np.degrees(np.arctan2(p1[:, 1] - p0[:, 1], p1[:, 0] - p0[:, 0]))
     scale = None
-    if nozzle.is_round:
+    if nozzle.is_round and narrow_beads:
         d = 2.0 * nozzle.footprints[0].a
         scale = np.where(np.isfinite(widths), np.minimum(1.0, widths / d), 1.0)
     if turns:
@@ -609,23 +622,78 @@ def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, 
 
 def _split(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
            options, scale=None) -> list[OrientedPiece]:
-    """Cut a move that fits nowhere into short pieces; keep those that fit somewhere."""
+    """Keep the parts of a move that fit somewhere; drop the rest.
+
+    A move usually fails because one end pokes out at a corner: first the
+    longest sub-interval that fits at one of the four cheapest orientations is
+    found among intervals trimmed at the start, the end or both by
+    geometrically growing lengths (one vectorised test); the trimmed-off
+    parts are then cut into pieces no longer than ``split_length`` and each
+    piece is searched alone.
+    """
     length = float(np.hypot(*(b - a)))
     step = options.split_length or max(0.05, nozzle.radius / 4)
+    prev = prev if not math.isnan(prev) else 0.0
+    if length <= 4 * step:
+        return _pieces(target, pieces, a, b, 0.0, 1.0, direction, width, prev, cands, beta,
+                       wtab, per, step, options, scale)
+    near, werr, turn = _cost_terms(np.array([direction]), np.array([width]), np.array([prev]),
+                                   cands, beta, wtab, per)
+    key = werr[0] / max(options.width_slack, 1e-9) + turn[0] / 30.0
+    top = near[0, np.argsort(key, kind="stable")[:4]]
+    deltas = []
+    d = step / length
+    while d < 0.5:
+        deltas.append(d)
+        d *= 2.0
+    iv = [(t0, t1) for dd in deltas for (t0, t1) in ((dd, 1.0), (0.0, 1.0 - dd), (dd, 1.0 - dd))]
+    t0s = np.array([t for t, _ in iv])
+    t1s = np.array([t for _, t in iv])
+    rows = np.repeat(np.arange(len(iv)), len(top))
+    phis = np.tile(top, len(iv))
+    q0 = a + t0s[rows, None] * (b - a)
+    q1 = a + t1s[rows, None] * (b - a)
+    ok = fits(target, pieces, q0, q1, phis,
+              scale=None if scale is None else np.full(len(rows), scale))
+    if not ok.any():
+        return _pieces(target, pieces, a, b, 0.0, 1.0, direction, width, prev, cands, beta,
+                       wtab, per, step, options, scale)
+    span = (t1s - t0s)[rows]
+    span = np.where(ok, span, -1.0)
+    j = int(np.argmax(span))  # longest; ties: first = cheapest orientation
+    t0, t1, phi = float(t0s[rows[j]]), float(t1s[rows[j]]), float(phis[j])
+    out: list[OrientedPiece] = []
+    if t0 > 0:
+        out += _pieces(target, pieces, a, b, 0.0, t0, direction, width, prev, cands, beta,
+                       wtab, per, step, options, scale)
+    out.append(OrientedPiece(t0, t1, phi))
+    if t1 < 1:
+        out += _pieces(target, pieces, a, b, t1, 1.0, direction, width, phi, cands, beta,
+                       wtab, per, step, options, scale)
+    return _merge(out)
+
+
+def _merge(pieces: list[OrientedPiece]) -> list[OrientedPiece]:
+    out: list[OrientedPiece] = []
+    for p in pieces:
+        if out and math.isclose(out[-1].t1, p.t0) and math.isclose(out[-1].angle, p.angle):
+            out[-1] = OrientedPiece(out[-1].t0, p.t1, out[-1].angle)
+        else:
+            out.append(p)
+    return out
+
+
+def _pieces(target, pieces, a, b, ta, tb, direction, width, prev, cands, beta, wtab, per,
+            step, options, scale) -> list[OrientedPiece]:
+    """Cut [ta, tb] of a move into pieces of at most ``step`` mm; keep those that fit."""
+    length = float(np.hypot(*(b - a))) * (tb - ta)
     m = max(1, math.ceil(length / step))
-    t = np.linspace(0.0, 1.0, m + 1)
+    t = np.linspace(ta, tb, m + 1)
     q0 = a + t[:-1, None] * (b - a)
     q1 = a + t[1:, None] * (b - a)
-    dirs = np.full(m, direction)
-    found, best = _search(target, pieces, q0, q1, dirs, np.full(m, width),
-                          np.full(m, prev if not math.isnan(prev) else 0.0), cands, beta, wtab,
-                          per, options, None if scale is None else np.full(m, scale))
-    out: list[OrientedPiece] = []
-    for i in range(m):
-        if not found[i]:
-            continue
-        if out and math.isclose(out[-1].t1, t[i]) and math.isclose(out[-1].angle, best[i]):
-            out[-1] = OrientedPiece(out[-1].t0, float(t[i + 1]), out[-1].angle)
-        else:
-            out.append(OrientedPiece(float(t[i]), float(t[i + 1]), float(best[i])))
-    return out
+    found, best = _search(target, pieces, q0, q1, np.full(m, direction), np.full(m, width),
+                          np.full(m, prev), cands, beta, wtab, per, options,
+                          None if scale is None else np.full(m, scale))
+    out = [OrientedPiece(float(t[i]), float(t[i + 1]), float(best[i]))
+           for i in range(m) if found[i]]
+    return _merge(out)
