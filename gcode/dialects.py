@@ -44,37 +44,38 @@ __all__ = [
 _NUM = rb"[-+]?(?:\d+\.?\d*|\.\d+)"
 _EOL = rb"[ \t]*(?=[\r\n]|\Z)"
 
-# Per dialect: named branches of one regular expression, so that a single pass
-# over the buffer finds every marker (all branches start with ';', which the
-# regex engine skips to quickly). Group names: layer, lz (Z given with the
-# layer marker), z, h, feature, width, wipe_start, wipe_end.
+# Per dialect: named branches of one regular expression (after a common ';'),
+# so that a single pass over the buffer finds every marker. Group names: layer,
+# lz (Z given with the layer marker), z, h, feature, width, wipe_start, wipe_end.
 _BRANCHES = {
     "prusa": (
-        rb"(?P<layer>;LAYER_CHANGE" + _EOL + rb")",
-        rb";Z:[ \t]*(?P<z>" + _NUM + rb")",
-        rb";HEIGHT:[ \t]*(?P<h>" + _NUM + rb")",
-        rb";TYPE:[ \t]*(?P<feature>[^\r\n]*)",
-        rb";WIDTH:[ \t]*(?P<width>" + _NUM + rb")",
+        rb"(?P<layer>LAYER_CHANGE" + _EOL + rb")",
+        rb"Z:[ \t]*(?P<z>" + _NUM + rb")",
+        rb"HEIGHT:[ \t]*(?P<h>" + _NUM + rb")",
+        rb"TYPE:[ \t]*(?P<feature>[^\r\n]*)",
+        rb"WIDTH:[ \t]*(?P<width>" + _NUM + rb")",
     ),
     "bambu": (
-        rb"(?P<layer>; CHANGE_LAYER" + _EOL + rb")",
-        rb"; Z_HEIGHT:[ \t]*(?P<z>" + _NUM + rb")",
-        rb"; LAYER_HEIGHT:[ \t]*(?P<h>" + _NUM + rb")",
-        rb"; FEATURE:[ \t]*(?P<feature>[^\r\n]*)",
-        rb"; LINE_WIDTH:[ \t]*(?P<width>" + _NUM + rb")",
+        rb"(?P<layer> CHANGE_LAYER" + _EOL + rb")",
+        rb" Z_HEIGHT:[ \t]*(?P<z>" + _NUM + rb")",
+        rb" LAYER_HEIGHT:[ \t]*(?P<h>" + _NUM + rb")",
+        rb" FEATURE:[ \t]*(?P<feature>[^\r\n]*)",
+        rb" LINE_WIDTH:[ \t]*(?P<width>" + _NUM + rb")",
     ),
     "cura": (
-        rb"(?P<layer>;LAYER:[ \t]*-?\d+" + _EOL + rb")",
-        rb";TYPE:[ \t]*(?P<feature>[^\r\n]*)",
+        rb"(?P<layer>LAYER:[ \t]*-?\d+" + _EOL + rb")",
+        rb"TYPE:[ \t]*(?P<feature>[^\r\n]*)",
     ),
     "simplify3d": (
-        rb"(?P<layer>; layer \d+), Z = (?P<lz>" + _NUM + rb")",
-        rb"; feature (?P<feature>[^\r\n]*)",
-        rb"; tool H" + _NUM + rb" W(?P<width>" + _NUM + rb")",
+        rb"(?P<layer> layer \d+), Z = (?P<lz>" + _NUM + rb")",
+        rb" feature (?P<feature>[^\r\n]*)",
+        rb" tool H" + _NUM + rb" W(?P<width>" + _NUM + rb")",
     ),
 }
-_WIPE = (rb"(?P<wipe_start>; ?WIPE_START)", rb"(?P<wipe_end>; ?WIPE_END)")
-_SCAN = {d: re.compile(b"|".join((*br, *_WIPE))) for d, br in _BRANCHES.items()}
+_WIPE = (rb"(?P<wipe_start> ?WIPE_START)", rb"(?P<wipe_end> ?WIPE_END)")
+# The ';' is outside the alternation: a literal prefix the regex engine finds
+# with a fast scan (with ';' inside each branch the scan is ~50x slower).
+_SCAN = {d: re.compile(b";(?:" + b"|".join((*br, *_WIPE)) + b")") for d, br in _BRANCHES.items()}
 _SCAN["zmoves"] = _SCAN["prusa"]  # feature/width comments may still be there
 
 # Layer markers at the start of a line, counted with bytes.count (memchr speed)
