@@ -1,0 +1,40 @@
+"""Short real slicer files for the post-processing tests (first layers of the shared samples)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+def first_layers(path: Path, n: int, marker: bytes = b";LAYER_CHANGE") -> bytes:
+    """The file up to (not including) its (n+1)-th layer marker: a valid, shorter G-code."""
+    data = path.read_bytes()
+    pos = -1
+    for _ in range(n + 1):
+        pos = data.find(b"\n" + marker, pos + 1)
+        if pos < 0:
+            return data
+    return data[: pos + 1]
+
+
+@pytest.fixture(scope="session")
+def prusa_short(shared_data: Path, tmp_path_factory) -> Path:
+    """PrusaSlicer 2.7.4, marlin2, relative E, arcs: the first 6 layers."""
+    out = tmp_path_factory.mktemp("pp") / "prusa_short.gcode"
+    out.write_bytes(first_layers(shared_data / "gcode" / "prusaslicer_2.7.4_marlin2_arcs.gcode", 6))
+    return out
+
+
+@pytest.fixture(scope="session")
+def benchy_short(shared_data: Path, tmp_path_factory) -> Path:
+    """Slic3r PE 1.33 + ArcWelder, reprap, absolute E, no layer comments: first ~4 layers."""
+    src = shared_data / "gcode" / "slic3rpe_1.33_arcwelder_benchy.gcode"
+    data = src.read_bytes()
+    # layers are found from Z: cut before the 5th "G1 Z" layer move
+    pos = -1
+    for _ in range(5):
+        pos = data.find(b"\nG1 Z", pos + 1)
+    out = tmp_path_factory.mktemp("pp") / "benchy_short.gcode"
+    out.write_bytes(data[: pos + 1])
+    return out

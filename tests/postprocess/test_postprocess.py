@@ -1,0 +1,247 @@
+"""``printability postprocess`` on real slicer files: kept lines, rotary words, MMC, errors."""
+
+from __future__ import annotations
+
+import collections
+import difflib
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcode import NON_PART_CATEGORIES, parse_gcode
+from printability.errors import FileFormatError, InputError
+from printability.mmc import compute_mmc
+from printability.motion.check import check_deposition, extrusion_chords
+from printability.nozzle import parse_nozzle
+from printability.postprocess import (
+    PostprocessOptions,
+    _layer_targets,
+    already_processed,
+    postprocess_bytes,
+    postprocess_file,
+    settings_from_environment,
+)
+
+ELLIPSE = "ellipse:major=0.8,minor=0.3"
+TOL = 1e-3
+SAMPLES = [
+    "prusaslicer_2.7.4_marlin2_arcs.gcode",
+    "prusaslicer_2.7.4_spiral_vase.gcode",
+    "orcaslicer_2.3.0b2_klipper_arcs.gcode",
+    "bambustudio_1.10_klipper_arcs.gcode",
+    "cura_5.9.1_marlin.gcode",
+    "slic3rpe_1.33_arcwelder_benchy.gcode",
+]
+
+
+def _header_removed(new: bytes) -> bytes:
+    lines = new.splitlines(keepends=True)
+    return b"".join(ln for ln in lines if not ln.startswith(b"; printability"))
+
+
+_C_WORD = re.compile(rb" C-?[0-9.]+")
+_INSERTED = re.compile(rb"^(G92 E-?[0-9.]+|G1 C-?[0-9.]+|; printability.*)\r?\n?$")
+
+
+def _changed_original_lines(old: bytes, new: bytes) -> list[int]:
+    """Original lines (0-based) not kept byte for byte, up to a rotary word added.
+
+    Both files are normalised the same way before difflib aligns them: lines of the
+    kinds the tool inserts (``G92 E…``, rotation-only ``G1 C…``, its comment block) are
+    set aside and rotary words removed, so the repeated lines of G-code cannot fool the
+    alignment; the original's own G92 lines are checked separately.
+    """
+    def norm(data: bytes) -> tuple[list[bytes], list[int]]:
+        lines, where = [], []
+        for i, ln in enumerate(data.splitlines(keepends=True)):
+            if _INSERTED.match(ln):
+                continue
+            lines.append(_C_WORD.sub(b"", ln))
+            where.append(i)
+        return lines, where
+
+    a, ia = norm(old)
+    b, _ = norm(new)
+    changed: list[int] = []
+    for tag, i1, i2, _, _ in difflib.SequenceMatcher(None, a, b, autojunk=False).get_opcodes():
+        if tag in ("replace", "delete"):
+            changed.extend(ia[i1:i2])
+    return changed
+
+
+@pytest.mark.parametrize("name", SAMPLES)
+def test_round_nozzle_of_the_slicer_keeps_the_file(shared_data, name):
+    """A round nozzle no larger than the slicer's lays the slicer's own beads: only the
+    comment block is added, every line of the slicer is kept byte for byte."""
+    data = (shared_data / "gcode" / name).read_bytes()
+    new, res = postprocess_bytes(data, path=name,
+                                 options=PostprocessOptions(nozzle="circle:d=0.4", machine="xy"))
+    assert res.changed_lines == 0 and res.rotary_words == 0 and res.dropped_moves == 0
+    assert _header_removed(new) == data
+    assert already_processed(new)
+
+
+@pytest.fixture(scope="module")
+def processed(prusa_short, benchy_short):
+    out = {}
+    for key, path in (("prusa", prusa_short), ("benchy", benchy_short)):
+        data = path.read_bytes()
+        new, res = postprocess_bytes(data, path=str(path),
+                                     options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
+        out[key] = (data, new, res)
+    return out
+
+
+@pytest.mark.parametrize("key", ["prusa", "benchy"])
+def test_only_part_extrusions_change(processed, key):
+    data, new, res = processed[key]
+    g = parse_gcode(data)
+    changed = _changed_original_lines(data, new)
+    assert changed, "an elliptical nozzle must turn somewhere"
+    m = g.moves
+    cats = g.feature_category_of_moves()
+    part = m["is_extrusion"] & ~np.isin(cats, list(NON_PART_CATEGORIES))
+    part_lines = set(m["line"][part].tolist())
+    assert set(changed) <= part_lines, "a line that needed no change was altered"
+    # the slicer's own G92 lines are all still there, in order
+    g92 = [ln for ln in data.splitlines() if ln.startswith(b"G92")]
+    new_g92 = iter(ln for ln in new.splitlines() if ln.startswith(b"G92"))
+    assert all(any(x == y for y in new_g92) for x in g92)
+
+
+@pytest.mark.parametrize("key", ["prusa", "benchy"])
+def test_rotary_words_never_on_arcs(processed, key):
+    _, new, res = processed[key]
+    g = parse_gcode(new)
+    w = g.words
+    c_lines = np.unique(w["line"][w["letter"] == ord("C")])
+    assert c_lines.size > 0 and res.rotary_words > 0
+    lines = g.lines[c_lines]
+    assert np.all(lines["letter"] == ord("G"))
+    assert not np.isin(lines["major"], [2, 3]).any(), "a rotary word on G2/G3"
+
+
+@pytest.mark.parametrize("key", ["prusa", "benchy"])
+def test_deposition_stays_inside_and_covers_as_built(processed, key):
+    """Sweep the ellipse along the emitted moves at the emitted angles: never outside the
+    layer's target by more than the tolerance (plus 2e-4 mm for the sampled outline), and
+    covering at least 95 % of the as-built region S that the analysis computes."""
+    data, new, _ = processed[key]
+    g0 = parse_gcode(data)
+    targets = _layer_targets(g0, 1.75, 32)
+    g1 = parse_gcode(new)
+    nozzle = parse_nozzle(ELLIPSE)
+    chords = extrusion_chords(g1)
+    layers = [i for i, t in enumerate(targets) if t is not None][:3]
+    reports = check_deposition(chords, targets, nozzle, layers=layers, keep_union=True)
+    assert len(reports) == len(layers)
+    for r in reports:
+        assert r.max_outside <= TOL + 2e-4, f"layer {r.layer}: {r.max_outside} mm outside"
+        mmc = compute_mmc(targets[r.layer], nozzle, "ttr")
+        s = mmc.as_built
+        covered = s.intersection(r.deposited).area / s.area
+        assert covered >= 0.95, f"layer {r.layer}: only {covered:.3f} of S deposited"
+
+
+def test_absolute_e_stays_consistent(processed):
+    """In an absolute-E file every kept extrusion feeds exactly what it fed before."""
+    data, new, _ = processed["benchy"]
+    g0, g1 = parse_gcode(data), parse_gcode(new)
+    a = data.splitlines(keepends=True)
+    b = new.splitlines(keepends=True)
+    e0 = dict(zip(g0.moves["line"].tolist(), g0.moves["e"].tolist(), strict=True))
+    e1 = dict(zip(g1.moves["line"].tolist(), g1.moves["e"].tolist(), strict=True))
+    checked = 0
+    for tag, i1, i2, j1, _ in difflib.SequenceMatcher(None, a, b, autojunk=False).get_opcodes():
+        if tag != "equal":
+            continue
+        for k in range(i2 - i1):
+            if (i1 + k) in e0:
+                assert e1[j1 + k] == pytest.approx(e0[i1 + k], abs=1e-9)
+                checked += 1
+    assert checked > 100
+    assert (g0.moves["flags"] & 1).sum() == 0, "the sample is an absolute-E file"
+
+
+def test_processing_twice_changes_nothing(processed, tmp_path):
+    _, new, _ = processed["prusa"]
+    again, res = postprocess_bytes(new, options=PostprocessOptions(nozzle=ELLIPSE))
+    assert res.already_processed and again == new
+
+
+def test_environment_settings():
+    env = {"SLIC3R_NOZZLE_DIAMETER": "0.6,0.4", "SLIC3R_LAYER_HEIGHT": "0.2",
+           "SLIC3R_USE_RELATIVE_E_DISTANCES": "1", "SLIC3R_ARC_FITTING": "emit_center",
+           "SLIC3R_FILAMENT_DIAMETER": "2.85", "SLIC3R_PP_OUTPUT_NAME": "/tmp/x.gcode"}
+    s = settings_from_environment(env)
+    assert s == {"nozzle_diameter": 0.6, "layer_height": 0.2, "filament_diameter": 2.85,
+                 "use_relative_e_distances": True, "arc_fitting": True,
+                 "pp_output_name": "/tmp/x.gcode"}
+    with pytest.raises(InputError, match="SLIC3R_LAYER_HEIGHT"):
+        settings_from_environment({"SLIC3R_LAYER_HEIGHT": "thin"})
+
+
+def test_nozzle_from_the_slicer_environment(prusa_short):
+    data = prusa_short.read_bytes()
+    _, res = postprocess_bytes(data, env={"SLIC3R_NOZZLE_DIAMETER": "0.4"})
+    assert res.nozzle == "circle:d=0.4" and res.changed_lines == 0
+
+
+@pytest.mark.parametrize(("content", "options", "error"), [
+    (b"\x00\x01\x02binary junk\n" * 10, {}, FileFormatError),
+    (None, {"feed_policy": "inverse-time"}, InputError),
+    (None, {"nozzle": "ellipse:major=0.3,minor=0.8"}, InputError),
+])
+def test_errors_leave_the_file_untouched(prusa_short, tmp_path, content, options, error):
+    path = tmp_path / "part.gcode"
+    original = content if content is not None else prusa_short.read_bytes()
+    path.write_bytes(original)
+    with pytest.raises(error):
+        postprocess_file(path, options=PostprocessOptions(**({"nozzle": ELLIPSE} | options)))
+    assert path.read_bytes() == original
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["part.gcode"], "a temporary file left"
+
+
+def _run_cli(args, env=None):
+    return subprocess.run([sys.executable, "-m", "printability", *args], capture_output=True,
+                          text=True, env={**os.environ, **(env or {})}, timeout=600)
+
+
+def test_cli_as_a_slicer_runs_it(prusa_short, tmp_path):
+    """The slicer's call: options, then the G-code path last; in place; .output_name."""
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    r = _run_cli(["postprocess", "--nozzle", ELLIPSE, "--output-name", "part_ttr.gcode",
+                  str(path)], env={"SLIC3R_PP_OUTPUT_NAME": str(tmp_path / "final.gcode")})
+    assert r.returncode == 0, r.stderr
+    assert already_processed(path.read_bytes())
+    assert (tmp_path / "part.gcode.output_name").read_text() == "part_ttr.gcode\n"
+    r2 = _run_cli(["postprocess", "--nozzle", ELLIPSE, str(path)])
+    assert r2.returncode == 0 and "already post-processed" in r2.stdout
+
+
+@pytest.mark.parametrize(("content", "nozzle", "expected"), [
+    (b"G20\nG1 X1 Y1 Z0.2\nG1 X2 Y1 E0.1\n", ELLIPSE, "inches"),
+    (b"G1 X1 Y1 Z0.2\nG1 X2 Y1 E0.1\n", "blob:d=1", "unknown nozzle kind"),
+])
+def test_cli_error_is_one_paragraph(tmp_path, content, nozzle, expected):
+    path = tmp_path / "bad.gcode"
+    path.write_bytes(content)
+    r = _run_cli(["postprocess", "--nozzle", nozzle, str(path)])
+    assert r.returncode == 1
+    assert r.stderr.startswith("printability: error:") and "\n\n" not in r.stderr.strip()
+    assert expected in r.stderr
+    assert path.read_bytes() == content
+
+
+def test_output_option_leaves_the_input(prusa_short, tmp_path):
+    out = tmp_path / "out.gcode"
+    before = prusa_short.read_bytes()
+    res = postprocess_file(prusa_short, options=PostprocessOptions(nozzle=ELLIPSE), output=out)
+    assert prusa_short.read_bytes() == before
+    assert Path(res.output) == out and already_processed(out.read_bytes())
