@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import collections
 import difflib
 import os
 import re
@@ -99,7 +98,7 @@ def processed(prusa_short, benchy_short):
 
 @pytest.mark.parametrize("key", ["prusa", "benchy"])
 def test_only_part_extrusions_change(processed, key):
-    data, new, res = processed[key]
+    data, new, _ = processed[key]
     g = parse_gcode(data)
     changed = _changed_original_lines(data, new)
     assert changed, "an elliptical nozzle must turn somewhere"
