@@ -23,6 +23,7 @@ from numba.cpython.unsafe.numbers import trailing_zeros
 
 __all__ = [
     "ALL_ONES",
+    "boundary_segments",
     "build_tables",
     "classify_rings",
     "count_bits_into",
@@ -569,4 +570,79 @@ def overlap_pairs(r1, s1, e1, l1, r2, s2, e2, l2):  # pragma: no cover - numba
             p += 1
         else:
             q += 1
+    return out[:m]
+
+
+@nb.njit(cache=True)
+def _push(out, m, x0, y0, x1, y1):  # pragma: no cover - numba
+    if m == out.shape[0]:
+        grown = np.empty((2 * out.shape[0], 4))
+        grown[:m] = out[:m]
+        out = grown
+    out[m, 0] = x0
+    out[m, 1] = y0
+    out[m, 2] = x1
+    out[m, 3] = y1
+    return out
+
+
+@nb.njit(cache=True)
+def boundary_segments(bits, nx):  # pragma: no cover - numba
+    """Boundary of a packed pixel set as axis-parallel segments in pixel units.
+
+    Horizontal segments are maximal runs of one kind (inside above, or inside
+    below) on each grid line; vertical segments are unit pixel edges. Every
+    segment ends where another begins, so the set is noded for polygonize.
+    Whole-word skips and trailing-zero jumps make it O(ny·nw + segments).
+    Returns ``float64 (m, 4)``: x0, y0, x1, y1.
+    """
+    ny, nw = bits.shape
+    out = np.empty((1024, 4))
+    m = 0
+    for line in range(ny + 1):
+        for kind in range(2):
+            inrun = False
+            start = 0
+            for w in range(nw):
+                below = bits[line - 1, w] if line > 0 else _U0
+                above = bits[line, w] if line < ny else _U0
+                v = (above & ~below) if kind == 0 else (below & ~above)
+                if v == _U0 and not inrun:
+                    continue
+                if v == ALL_ONES and inrun:
+                    continue
+                pos = 0
+                while pos < 64:
+                    if inrun:
+                        z = (~v) >> np.uint64(pos)
+                        if z == _U0:
+                            break
+                        pos += trailing_zeros(z)
+                        out = _push(out, m, start, line, w * 64 + pos, line)
+                        m += 1
+                        inrun = False
+                    else:
+                        o = v >> np.uint64(pos)
+                        if o == _U0:
+                            break
+                        pos += trailing_zeros(o)
+                        start = w * 64 + pos
+                        inrun = True
+            if inrun:
+                out = _push(out, m, start, line, nw * 64, line)
+                m += 1
+    for i in range(ny):
+        carry = _U0
+        for w in range(nw):
+            v = bits[i, w]
+            x = v ^ ((v << _U1) | carry)
+            carry = v >> np.uint64(63)
+            while x != _U0:
+                j = w * 64 + trailing_zeros(x)
+                out = _push(out, m, j, i, j, i + 1)
+                m += 1
+                x &= x - _U1
+        if carry != _U0:
+            out = _push(out, m, nw * 64, i, nw * 64, i + 1)
+            m += 1
     return out[:m]
