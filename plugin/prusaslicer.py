@@ -1,0 +1,46 @@
+"""Post-processing entry point for PrusaSlicer, SuperSlicer and OrcaSlicer.
+
+In *Print Settings → Output options → Post-processing scripts* put one line::
+
+    printability-postprocess --nozzle ellipse:major=0.8,minor=0.3 --machine ttr
+
+(on Windows the installed ``printability-postprocess.exe``: a console script,
+so it runs where a bare ``.py`` would not). The slicer appends the path of
+the G-code it just wrote as the **last argument**, exports its settings as
+``SLIC3R_*`` environment variables and expects the file to be changed in
+place; on failure it shows what the script printed on stderr. Options are
+those of ``printability postprocess`` (``--help``); they can also be given in
+the ``PRINTABILITY_POSTPROCESS_ARGS`` environment variable (shell syntax),
+which is handy when the slicer's field is shared between printers.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import sys
+
+__all__ = ["main"]
+
+
+def build_argv(argv: list[str], environ: dict[str, str] | None = None) -> list[str]:
+    """The ``printability`` command line for a slicer's call: options first, the G-code last."""
+    environ = dict(os.environ) if environ is None else environ
+    extra = shlex.split(environ.get("PRINTABILITY_POSTPROCESS_ARGS", ""))
+    if not argv:
+        return ["postprocess", "--help"]
+    *options, gcode = argv
+    if gcode.startswith("-"):  # no path: let the CLI explain its usage
+        return ["postprocess", *extra, *argv]
+    return ["postprocess", *extra, *options, gcode]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``printability postprocess`` the way a slicer calls a script; returns the exit code."""
+    from printability.cli.main import main as cli_main
+
+    return cli_main(build_argv(sys.argv[1:] if argv is None else argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
