@@ -11,7 +11,9 @@ Conventions
   logical frame, so a later ``G1 X20`` is stored where the nozzle really
   goes. Axes never set yet are NaN (the start of a file is unknown until the
   first absolute move or a G28, which is taken to home to 0).
-* ``e`` is the filament fed by the move, mm (negative: retraction).
+* ``e`` is the filament fed by the move, mm (negative: retraction);
+  ``e_pos`` the extruder's logical position after it (what an absolute-E
+  file would write; G92 E resets it), mm.
 * Arcs (G17 plane) keep their centre, signed sweep (radians, CCW positive)
   and start/end radii; :mod:`gcode.arcs` linearises them.
 
@@ -43,7 +45,7 @@ ERR_MESSAGES = {
 
 MOVE_FIELDS = (
     "line", "kind", "x0", "y0", "z0", "x1", "y1", "z1", "e", "feed", "tool",
-    "cx", "cy", "sweep", "r0", "r1", "flags",
+    "cx", "cy", "sweep", "r0", "r1", "flags", "e_pos",
 )
 
 # move flags
@@ -75,6 +77,7 @@ def _machine_impl(kind, letter, major, minor, wfirst, wcount, bad,
     m_r0 = np.full(n_moves, np.nan)
     m_r1 = np.full(n_moves, np.nan)
     m_flags = np.zeros(n_moves, np.uint8)
+    m_epos = np.empty(n_moves)
 
     x = np.nan
     y = np.nan
@@ -205,6 +208,7 @@ def _machine_impl(kind, letter, major, minor, wfirst, wcount, bad,
             if retracted:
                 fl |= 8
             m_flags[nm] = fl
+            m_epos[nm] = epos
             if mj >= 2:
                 if plane != 17:
                     err = 4
@@ -351,7 +355,8 @@ def _machine_impl(kind, letter, major, minor, wfirst, wcount, bad,
 
     return (err, err_line, m_line[:nm], m_kind[:nm], m_x0[:nm], m_y0[:nm], m_z0[:nm],
             m_x1[:nm], m_y1[:nm], m_z1[:nm], m_e[:nm], m_feed[:nm], m_tool[:nm],
-            m_cx[:nm], m_cy[:nm], m_sweep[:nm], m_r0[:nm], m_r1[:nm], m_flags[:nm])
+            m_cx[:nm], m_cy[:nm], m_sweep[:nm], m_r0[:nm], m_r1[:nm], m_flags[:nm],
+            m_epos[:nm])
 
 
 _compiled = None

@@ -74,12 +74,14 @@ MOVE_DTYPE = np.dtype(
     [("line", "i8"), ("kind", "u1"), ("x0", "f8"), ("y0", "f8"), ("z0", "f8"), ("x1", "f8"),
      ("y1", "f8"), ("z1", "f8"), ("e", "f8"), ("feed", "f8"), ("tool", "i2"), ("cx", "f8"),
      ("cy", "f8"), ("sweep", "f8"), ("r0", "f8"), ("r1", "f8"), ("flags", "u1"),
-     ("is_extrusion", "?"), ("wipe", "?"), ("feature", "i2"), ("width", "f8"), ("layer", "i4")]
+     ("e_pos", "f8"), ("is_extrusion", "?"), ("wipe", "?"), ("feature", "i2"), ("width", "f8"),
+     ("layer", "i4")]
 )
 """One row per G0/G1/G2/G3 line.
 
 ``kind`` 0-3 (G0..G3); start/end machine coordinates in mm (NaN: not known
-yet); ``e`` filament fed, mm; ``feed`` mm/min; ``cx, cy, sweep, r0, r1``
+yet); ``e`` filament fed, mm; ``e_pos`` the logical E after the move
+(G92 frame; what an absolute-E file writes), mm; ``feed`` mm/min; ``cx, cy, sweep, r0, r1``
 the arc's centre, signed sweep (rad, CCW > 0) and radii; ``flags`` bits
 1 E relative, 2 XYZ relative, 4 inches, 8 firmware-retracted;
 ``is_extrusion``: E > 0 and the nozzle moves in XY; ``wipe``: inside a

@@ -477,3 +477,9 @@ def test_modal_state_against_a_plain_model(ops):
     m = parse_gcode(("\n".join(lines) + "\n").encode(), flavor="marlin").moves
     got = np.column_stack([m["x1"], m["y1"], m["e"]])
     assert np.allclose(got, np.array(want).reshape(-1, 3), rtol=0, atol=1e-9)
+
+
+def test_logical_e_position():
+    m = moves_of("M82\nG92 E0\nG1 X0 Y0\nG1 X1 E2\nG92 E10\nG1 X2 E11\nM83\nG1 X3 E0.5\n")
+    assert m["e_pos"].tolist() == [0, 2, 11, 11.5]
+    assert m["e"].tolist() == [0, 2, 1, 0.5]
