@@ -268,6 +268,16 @@ def load_gcode_layers(
 ) -> LayerStack:
     """Read sliced G-code and rebuild every layer's target region G from its beads.
 
+    G is the union of the layer's beads: each extruding move swept by a disc
+    of the bead width (a rectangle with round caps in plan view). The width is
+    the slicer's ``;WIDTH:``/``; LINE_WIDTH:`` when the file has it, else
+    w = A_f·ΔE/(L·h) + h·(1 − π/4) (stadium cross-section, Slic3r family) or
+    w = A_f·ΔE/(L·h) (rectangle, Cura), A_f = π·d_f²/4. G is what the file
+    deposits, not the CAD section: sparse infill leaves holes, overlaps just
+    union, squish and bulges are not modelled; supports, skirts, brims, wipe
+    towers, purge lines and ironing are left out by default (only when the
+    file labels them). Details and limits: the module docstring.
+
     Parameters
     ----------
     path
