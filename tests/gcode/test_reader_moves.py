@@ -483,3 +483,34 @@ def test_logical_e_position():
     m = moves_of("M82\nG92 E0\nG1 X0 Y0\nG1 X1 E2\nG92 E10\nG1 X2 E11\nM83\nG1 X3 E0.5\n")
     assert m["e_pos"].tolist() == [0, 2, 11, 11.5]
     assert m["e"].tolist() == [0, 2, 1, 0.5]
+
+
+_FUZZ_LINES = st.one_of(
+    st.sampled_from([
+        "G1 X1 Y1", "G1 X5 E1", "G2 X0 Y0 I1 J0", "G3 X1 Y1 R2", "G3 I-1 J0 P2", "G92 E0",
+        "G91", "G90", "M83", "M82", "G20", "G21", "G10", "G11", "T1", "G28", "G28 X",
+        ";LAYER_CHANGE", ";Z:0.4", ";TYPE:Support material", ";WIDTH:0.4", ";LAYER:3",
+        "; CHANGE_LAYER", ";WIPE_START", ";WIPE_END", "G1 Z0.2", "G1 X Y", "M84 X Y E",
+        "G18", "G17", "EXCLUDE_OBJECT_START NAME=a", "N3 G1 X2*12", "", "G92 X0",
+    ]),
+    st.lists(st.sampled_from(list("GMXYZEIJRP0123456789.- ;")), max_size=12).map("".join),
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(_FUZZ_LINES, min_size=1, max_size=30))
+def test_random_programs_parse_or_fail_cleanly(lines):
+    data = ("\n".join(lines) + "\n").encode()
+    try:
+        g = parse_gcode(data, path="fuzz.gcode")
+    except FileFormatError as exc:
+        assert str(exc).startswith("fuzz.gcode")
+        return
+    assert g.to_bytes() == data
+    assert len(g.moves) == sum(
+        1 for k in range(len(g)) if g.lines["kind"][k] == 2 and g.lines["letter"][k] == 71
+        and 0 <= g.lines["major"][k] <= 3 and g.lines["minor"][k] < 0
+    )
+    ext = g.moves["is_extrusion"]
+    assert np.isfinite(g.moves["x1"][ext]).all()
+    linearise(g.moves[ext], 0.01)
