@@ -35,6 +35,12 @@ def analyze_command(
                                      help="Units of a mesh or drawing without units (mm, in...)."),
     fit: float | None = typer.Option(None, "--fit",
                                      help="Scale a drawing or map so its longest side is FIT mm."),
+    map_scale: float | None = typer.Option(None, "--map-scale",
+                                           help="Geographic input: mm on the print per km."),
+    clip: str | None = typer.Option(None, "--clip", help="GeoJSON/WKT: keep what lies in the box "
+                                    "MINX,MINY,MAXX,MAXY (file coordinates, lon/lat for maps)."),
+    keep_largest: int | None = typer.Option(None, "--keep-largest",
+                                            help="GeoJSON/WKT: keep the N largest polygons."),
     json_out: Path | None = typer.Option(None, "--json", help="Write the result as JSON here."),  # noqa: B008
     out: Path | None = typer.Option(None, "--out", help="Write an HTML report with figures and "  # noqa: B008
                                     "the as-built geometry into this folder."),
@@ -52,8 +58,12 @@ def analyze_command(
     settings = Settings(resolution=resolution, angle_step=angle_step, workers=workers,
                         progress=progress)
     engine = ENGINES.check(engine)
+    box = _parse_box(clip) if clip is not None else None
     layers = load_layers(input, layer_height=layer_height, first_layer_height=first_layer_height,
-                         units=units, fit=fit, settings=settings)
+                         units=units, fit=fit, map_scale=map_scale, clip=box,
+                         keep_largest=keep_largest, settings=settings)
+    for warning in layers.meta.get("warnings", ()):
+        typer.echo(f"printability: warning: {warning}", err=True)
     with progress_callback("analysing layers", enabled=progress) as on_progress:
         result = analyze(layers, nozzle, machine, engine=engine, settings=settings,
                          keep_results=out is not None, scheduler=scheduler,
@@ -66,6 +76,19 @@ def analyze_command(
 
         index = write_report(result, out)
         typer.echo(f"report: {index}")
+
+
+def _parse_box(text: str) -> tuple[float, float, float, float]:
+    from printability.errors import InputError
+
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4 or values[0] >= values[2] or values[1] >= values[3]:
+        raise InputError(f"--clip expects MINX,MINY,MAXX,MAXY with MINX < MAXX and MINY < MAXY; "
+                         f"found {text!r}")
+    return values  # type: ignore[return-value]
 
 
 def print_ranking(result) -> None:
