@@ -514,3 +514,34 @@ def test_random_programs_parse_or_fail_cleanly(lines):
     ext = g.moves["is_extrusion"]
     assert np.isfinite(g.moves["x1"][ext]).all()
     linearise(g.moves[ext], 0.01)
+
+
+@pytest.mark.parametrize("name", ["prusaslicer_2.7.4_marlin2_arcs.gcode",
+                                  "bambustudio_1.10_klipper_arcs.gcode",
+                                  "orcaslicer_2.3.0b2_klipper_arcs.gcode"])
+def test_arc_lengths_agree_with_the_slicers_flow(gfiles, name):
+    """The slicer fed E in proportion to each move's true length. With our arc
+    sweeps and lengths, the E per mm of arcs must match that of straight moves
+    of the same width: a wrong sweep (the complementary arc, a missed full
+    turn) would be off by a large factor."""
+    from printability.sources.gcode import bead_widths
+
+    g = gfiles[name]
+    m = g.moves
+    ext = m["is_extrusion"] & (m["layer"] >= 0) & np.isfinite(m["width"])
+    arc = m["kind"] >= 2
+    length = np.where(arc, arc_length(m["r0"], m["r1"], m["sweep"]),
+                      np.hypot(m["x1"] - m["x0"], m["y1"] - m["y0"]))
+    h = g.layers["height"][np.maximum(m["layer"], 0)]
+    w = bead_widths(m["e"], length, h, filament_diameter=1.75, model="stadium")
+    ratio = w / m["width"]
+    # walls: one flow per profile (Orca combines sparse infill of two layers, bridges
+    # use their own flow, so those do not follow the layer height)
+    walls = np.isin(g.feature_category_of_moves(), ["outer_wall", "inner_wall"])
+    sel = ext & walls & (length > 2.0)
+    line_ratio = np.median(ratio[sel & ~arc])
+    arcs = ratio[sel & arc]
+    assert len(arcs) > 200
+    # flow ratios differ between profiles (Orca/Bambu ~0.96-0.98), not between move kinds
+    assert np.median(arcs) == pytest.approx(line_ratio, rel=2e-3)
+    assert np.mean(np.abs(arcs / line_ratio - 1) < 0.02) > 0.95
