@@ -53,6 +53,9 @@ What it cannot know
   by slicers); widths above ``max_width_factor`` × the file's median derived width
   are clipped to it, and the number clipped is reported in ``meta``;
   derived widths are rounded to 1 µm.
+* Infill the slicer combines over several layers ("combine infill every n
+  layers"; OrcaSlicer's sample does it for sparse infill) is printed, thicker,
+  in one layer of each group and appears only in that layer's G.
 * Spiral (vase) layers, whose Z rises while extruding, are projected onto
   their layer's plane.
 * In files without layer comments, layers come from the Z of the extrusions
