@@ -11,7 +11,7 @@ from __future__ import annotations
 from gcode._machine import MF_E_RELATIVE, MF_INCH, MF_RETRACTED, MF_XYZ_RELATIVE
 from gcode.arcs import SEGMENT_DTYPE, arc_chord_count, arc_length, linearise
 from gcode.dialects import CATEGORIES, NON_PART_CATEGORIES, feature_category
-from gcode.line import ParsedLine, Segment, Word, parse_line
+from gcode.line import ParsedLine, Segment, Word, extended_params, parse_line
 from gcode.reader import (
     LAYER_DTYPE,
     LINE_DTYPE,
@@ -40,6 +40,7 @@ __all__ = [
     "Word",
     "arc_chord_count",
     "arc_length",
+    "extended_params",
     "feature_category",
     "linearise",
     "parse_gcode",

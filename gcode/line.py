@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 from gcode._lexer import STRING_ARG_MCODES
 
-__all__ = ["ParsedLine", "Segment", "Word", "parse_line"]
+__all__ = ["ParsedLine", "Segment", "Word", "extended_params", "parse_line"]
 
 _NUMWORD = re.compile(rb"[A-Za-z]([+-]?)(\d*)(?:(\.)(\d*))?")
 _QUOTED = re.compile(rb'"(?:[^"]|"")*"?')
@@ -292,3 +292,51 @@ def parse_line(raw: bytes) -> ParsedLine:
         bad_column=bad_column,
         control_column=control_column,
     )
+
+
+_PARAM = re.compile(rb"([A-Za-z_][A-Za-z0-9_]*)=")
+
+
+def extended_params(raw: bytes) -> dict[str, str]:
+    """``KEY=VALUE`` parameters of a named (Klipper-style) command.
+
+    Values run to the next blank outside brackets and quotes, so
+    ``POLYGON=[[1,2], [3,4]]`` and ``MSG="a b"`` stay whole. Keys are
+    upper-cased; values are returned as written (decoded as UTF-8 with
+    replacement). The command name itself is not included.
+
+    >>> extended_params(b"EXCLUDE_OBJECT_DEFINE NAME=a CENTER=1,2 POLYGON=[[0,0],[1,0]]\\n")
+    {'NAME': 'a', 'CENTER': '1,2', 'POLYGON': '[[0,0],[1,0]]'}
+    """
+    content, _ = _split_eol(raw)
+    semi = content.find(b";")
+    body = content if semi < 0 else content[:semi]
+    m = _IDENT.match(body.lstrip(b" \t"))
+    i = (len(body) - len(body.lstrip(b" \t"))) + (m.end() if m else 0)
+    out: dict[str, str] = {}
+    n = len(body)
+    while i < n:
+        while i < n and body[i] in b" \t":
+            i += 1
+        mk = _PARAM.match(body, i)
+        if not mk:
+            j = _NONBLANK.match(body, i).end()  # a bare token: skip it
+            i = max(j, i + 1)
+            continue
+        j = mk.end()
+        depth = 0
+        quote = False
+        while j < n:
+            c = body[j]
+            if c == 0x22:
+                quote = not quote
+            elif not quote and c in b"[(":
+                depth += 1
+            elif not quote and c in b"])":
+                depth -= 1
+            elif not quote and depth <= 0 and c in b" \t":
+                break
+            j += 1
+        out[mk.group(1).decode("ascii").upper()] = body[mk.end() : j].decode("utf-8", "replace")
+        i = j
+    return out

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import hypothesis.strategies as st
 import numpy as np
 import pytest
@@ -159,3 +161,18 @@ def test_numbers_convert_exactly():
     assert words["value"].tolist() == [float(t) for t in texts]
     assert np.signbit(words["value"][1])
     assert not (words["flags"] & _lexer.WORD_INEXACT).any()
+
+
+def test_extended_params(shared_data):
+    from gcode import extended_params
+
+    assert extended_params(b'SET_VELOCITY_LIMIT ACCEL=1000 ACCEL_TO_DECEL=500 ; x\n') == {
+        "ACCEL": "1000", "ACCEL_TO_DECEL": "500"}
+    assert extended_params(b'RESPOND MSG="a b" TYPE=echo\n') == {"MSG": '"a b"', "TYPE": "echo"}
+    assert extended_params(b'M117 ignored WORD=x[1, 2] Y=2\r\n') == {"WORD": "x[1, 2]", "Y": "2"}
+    data = (shared_data / "gcode" / "bambustudio_1.10_klipper_arcs.gcode").read_bytes()
+    line = next(x for x in data.splitlines() if x.startswith(b"EXCLUDE_OBJECT_DEFINE"))
+    p = extended_params(line)
+    assert p["NAME"] == "TC_Top.stl_id_0_copy_0" and p["CENTER"] == "150,150"
+    pts = json.loads(p["POLYGON"])
+    assert len(pts) > 100 and all(len(q) == 2 for q in pts)
