@@ -17,3 +17,17 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real data folder not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+def _hypothesis_profiles() -> None:
+    """CI replays the same examples every run (a red CI names a real regression, not a new
+    random draw); local runs keep exploring. Select with HYPOTHESIS_PROFILE."""
+    from hypothesis import settings
+
+    settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)
+    settings.register_profile("dev", deadline=None, print_blob=True)
+    settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci" if os.environ.get("CI")
+                                         else "dev"))
+
+
+_hypothesis_profiles()
