@@ -140,7 +140,7 @@ class FirmwareProfile:
 
 
 _KLIPPER = dict(
-    name="klipper", firmware_name="Klipper v0.12.0 (printability simulator)", checksums=False,
+    name="klipper", firmware_name="v0.12.0-printability-simulator", checksums=False,
     advanced_ok=False, ok_after_resend=False, banner=(),
     unknown_format='// Unknown command:"{}"', endstops="error", rx_buffer=4096,
     command_buffer=64, planner_buffer=64, max_line=4096, acceleration=3000.0,

@@ -147,6 +147,7 @@ class Stats:
     errors: dict[str, int] = field(default_factory=dict)
     unknown: int = 0
     busy_sent: int = 0
+    cold_extrusions: int = 0
     resets: int = 0
     moves: int = 0
     blocks: int = 0
@@ -176,8 +177,9 @@ class Firmware:
         self.executed: list[tuple[int | None, str]] = []
         self.stats = Stats()
         self.now = 0.0
-        self._out: list[bytes | Stall | Disconnect] = []
+        self._out: list[bytearray | Stall | Disconnect] = []
         self._pending: deque[tuple[float, bytes]] = deque()
+        self._pending_off = 0
         self._wire_free = 0.0
         self._power_on(banner=False)
 
@@ -215,6 +217,7 @@ class Firmware:
         """A host opened the port: the board resets (DTR) and greets it."""
         self.stats.resets += 1
         self._pending.clear()
+        self._pending_off = 0
         self._power_on(banner=True)
 
     # ================================================================ I/O
@@ -232,15 +235,15 @@ class Firmware:
     def take_output(self) -> list[bytes | Stall | Disconnect]:
         """What the firmware said since the last call (bytes and link markers)."""
         out, self._out = self._out, []
-        return out
+        return [bytes(x) if isinstance(x, bytearray) else x for x in out]
 
     def _emit(self, line: str) -> None:
         data = (line + "\n").encode("latin-1", "replace")
         self.stats.bytes_out += len(data)
-        if self._out and isinstance(self._out[-1], bytes):
-            self._out[-1] += data
+        if self._out and isinstance(self._out[-1], bytearray):
+            self._out[-1] += data  # in place: long runs stay linear
         else:
-            self._out.append(data)
+            self._out.append(bytearray(data))
 
     # ================================================================ time
     def next_event(self) -> float:
@@ -285,6 +288,7 @@ class Firmware:
         self.now = max(self.now, now)
         if self.halted:
             self._pending.clear()
+            self._pending_off = 0
             return
         while True:
             self._arrivals()
@@ -306,20 +310,24 @@ class Firmware:
     def _arrivals(self) -> None:
         room = self.fw.rx_buffer - len(self._ring)
         while self._pending and self._pending[0][0] <= self.now:
-            t, data = self._pending[0]
-            if len(data) <= room:
-                self._ring += data
-                room -= len(data)
+            data = self._pending[0][1]
+            off = self._pending_off  # consumed bytes of the head chunk (no O(n²) slicing)
+            left = len(data) - off
+            if left <= room:
+                self._ring += data[off:]
+                room -= left
                 self._pending.popleft()
+                self._pending_off = 0
             elif self.fw.rx_overflow_drops:
-                self._ring += data[:room]
-                self.stats.bytes_dropped += len(data) - room
+                self._ring += data[off:off + room]
+                self.stats.bytes_dropped += left - room
                 room = 0
                 self._pending.popleft()
+                self._pending_off = 0
             else:  # flow control holds the rest back
                 if room > 0:
-                    self._ring += data[:room]
-                    self._pending[0] = (t, data[room:])
+                    self._ring += data[off:off + room]
+                    self._pending_off = off + room
                 break
 
     def _periodic(self) -> None:
@@ -374,6 +382,7 @@ class Firmware:
         self._in_comment = False
         while self._pending and self._pending[0][0] <= self.now:
             self._pending.popleft()
+            self._pending_off = 0
         self._emit(f"Resend: {self.last_n + 1}")
         self.stats.resends += 1
         if self.fw.ok_after_resend:
@@ -587,6 +596,7 @@ class Firmware:
                     self.deposition.add(b.start, b.end, b.e1 - b.e0, len(self.executed) - 1)
                 self._push_block(b)
             if cold:
+                self.stats.cold_extrusions += 1
                 self._emit(COLD)
             return
         if code == "G4":
@@ -756,7 +766,8 @@ class Firmware:
             "bytes_in": s.bytes_in, "bytes_out": s.bytes_out, "bytes_dropped": s.bytes_dropped,
             "lines_in": s.lines_in, "executed": s.executed, "resends": s.resends,
             "errors": dict(s.errors), "unknown_commands": s.unknown, "busy_sent": s.busy_sent,
-            "resets": s.resets, "moves": s.moves, "planner_blocks": s.blocks,
+            "cold_extrusions": s.cold_extrusions, "resets": s.resets, "moves": s.moves,
+            "planner_blocks": s.blocks,
             "motion_time_s": s.motion_time, "clock_s": self.now,
             "faults": [list(f) for f in s.faults],
             "extruded_mm": float(sum(lay.extruded for lay in self.deposition.layers.values())),

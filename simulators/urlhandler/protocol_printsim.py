@@ -8,9 +8,10 @@ Usage::
     ser.simulator         # the Link; ser.simulator.firmware is the Firmware
 
 Query keys: ``profile``, ``machine``, ``nozzle``, ``clock`` (``sim`` default,
-or ``real``), ``baud`` (wire pacing), ``faults``, ``seed``, ``record`` (path
-written on close), and any :class:`simulators.config.FirmwareProfile` field
-as ``fw.<field>=value`` (e.g. ``fw.planner_buffer=4``).
+or ``real``), ``baud`` (wire pacing of what the host sends), ``faults``,
+``seed``, ``record`` (path of the deposition record), and any
+:class:`simulators.config.FirmwareProfile` field as ``fw.<field>=value`` (e.g.
+``fw.planner_buffer=4``). The record is written when the port is closed.
 
 Opening the port resets the board (DTR) and sends the banner. After a
 ``disconnect`` fault, reads and writes raise ``SerialException`` until the
@@ -89,12 +90,11 @@ class Serial(SerialBase):
         self.simulator.connect()
 
     def close(self) -> None:
-        self.is_open = False
-
-    def finish(self) -> None:
-        """Drain the planner and write the configured record (the port may stay open)."""
-        if self.simulator is not None:
+        """Close the port; with ``record=PATH`` the planner is drained and the record written
+        (a later reopen reconnects to the same printer and a later close rewrites it)."""
+        if self.is_open and self.simulator is not None and self.simulator.config.record:
             self.simulator.close()
+        self.is_open = False
 
     def _reconfigure_port(self) -> None:
         pass
