@@ -31,6 +31,7 @@ __all__ = [
     "dilate_words",
     "erode_words",
     "extract_runs",
+    "flat_runs",
     "label_runs",
     "near_needy",
     "overlap_pairs",
@@ -231,17 +232,6 @@ def coverage_rings(xs, ys, starts, x0, y0, h, nx, ny):  # pragma: no cover - num
 # --------------------------------------------------------------------------- bit morphology
 
 
-@nb.njit(cache=True, inline="always")
-def _read(t, lev, i, c):  # pragma: no cover - numba
-    """64 pixels of row ``i`` of level ``lev`` of padded table ``t`` from column ``c``.
-
-    Branch-free: the tables carry zero padding wide enough for every read.
-    """
-    w = c >> 6
-    s = np.uint64(c & 63)
-    return (t[lev, i, w] >> s) | ((t[lev, i, w + 1] << _U1) << (np.uint64(63) - s))
-
-
 def table_padding(radius: int) -> tuple[int, int]:
     """(rows, words) of zero padding the tables need for kernels of half-size ``radius``."""
     return radius + 1, radius // 64 + 2
@@ -276,31 +266,57 @@ def build_tables(bits, tables, pad_rows, pad_words, op_and, row_lo, row_hi
                     tables[lev, i, w] = cur | v
 
 
+def flat_runs(runs: np.ndarray, table_shape: tuple[int, int, int], pad_rows: int,
+              pad_words: int) -> np.ndarray:
+    """Runs ``(dy, a, level, second)`` as flat table offsets for :func:`erode_words`.
+
+    A run read at word (i, w) starts at column 64·(w + pad_words) + a of padded
+    row i + pad_rows + dy: the word offset and the bit shift depend on the run
+    only, so each read is one add and two loads. Returns ``int64 (nr, 4)``:
+    offset, shift, second offset (−1 when none), second shift.
+    """
+    _, nyp, nwp = table_shape
+    out = np.empty((len(runs), 4), np.int64)
+    if len(runs) == 0:
+        return out
+    dy, a, lev, second = runs[:, 0], runs[:, 1], runs[:, 2], runs[:, 3]
+    base = lev * nyp * nwp + (pad_rows + dy) * nwp + pad_words
+    out[:, 0] = base + (a >> 6)
+    out[:, 1] = a & 63
+    a2 = a + np.maximum(second, 0)
+    out[:, 2] = np.where(second >= 0, base + (a2 >> 6), -1)
+    out[:, 3] = a2 & 63
+    return out
+
+
+@nb.njit(cache=True, inline="always")
+def _flat_read(t, f, s):  # pragma: no cover - numba
+    sh = np.uint64(s)
+    return (t[f] >> sh) | ((t[f + 1] << _U1) << (np.uint64(63) - sh))
+
+
 @nb.njit(cache=True)
-def erode_words(tables, pad_rows, pad_words, runs, band_i, band_w, last_mask, out_work,
+def erode_words(tflat, nwp, fr, band_i, band_w, last_mask, out_work,
                 out_vals):  # pragma: no cover - numba
     """Erosion (AND over kernel runs) of the words listed in the band.
 
-    ``runs[r] = (dy, a, level, second)``: run r reads the AND-table ``level``
-    of row ``i + dy`` at column ``64w + a`` and again at ``+ second`` (when
-    ≥ 0). The result of band word b = (i, w) goes to ``out_work[i, w]`` and
-    ``out_vals[b]`` (when ``out_vals`` is non-empty). A word stops at 0.
+    ``tflat`` is the flattened padded AND-table (rows of ``nwp`` words) and
+    ``fr`` the runs from :func:`flat_runs`. The result of band word b = (i, w)
+    goes to ``out_work[i, w]`` and ``out_vals[b]`` (when ``out_vals`` is
+    non-empty). A word stops at 0.
     """
     nw = out_work.shape[1]
-    nr = runs.shape[0]
+    nr = fr.shape[0]
     store = out_vals.shape[0] > 0
-    cbase = pad_words * 64
     for b in range(band_i.shape[0]):
         i = band_i[b]
         w = band_w[b]
+        base = i * nwp + w
         acc = ALL_ONES
         for r in range(nr):
-            row = i + pad_rows + runs[r, 0]
-            c = cbase + w * 64 + runs[r, 1]
-            lev = runs[r, 2]
-            v = _read(tables, lev, row, c)
-            if runs[r, 3] >= 0:
-                v &= _read(tables, lev, row, c + runs[r, 3])
+            v = _flat_read(tflat, fr[r, 0] + base, fr[r, 1])
+            if fr[r, 2] >= 0:
+                v &= _flat_read(tflat, fr[r, 2] + base, fr[r, 3])
             acc &= v
             if acc == _U0:
                 break
@@ -338,19 +354,18 @@ def update_tables(bits, tables, pad_rows, pad_words, band_i, band_w, op_and
 
 
 @nb.njit(cache=True)
-def dilate_words(tables, pad_rows, pad_words, runs, target, union):  # pragma: no cover - numba
-    """OR into ``union`` the dilation (OR over kernel runs, reading OR-tables) on the
-    pixels of ``target`` not yet in ``union``.
+def dilate_words(tflat, nwp, fr, target, union):  # pragma: no cover - numba
+    """OR into ``union`` the dilation (OR over kernel runs, reading the flattened padded
+    OR-table) on the pixels of ``target`` not yet in ``union``.
 
-    ``runs[r] = (dy, a, level, second)`` as for :func:`erode_words` (runs of
-    at most 64 pixels, so :func:`update_tables` can keep the tables fresh).
-    Words whose target pixels are all in ``union`` already are skipped (a
-    union over angles needs nothing more there); a word stops as soon as it
-    covers every missing pixel. Returns the number of words computed.
+    ``fr`` from :func:`flat_runs` (runs of at most 64 pixels, so
+    :func:`update_tables` can keep the tables fresh). Words whose target
+    pixels are all in ``union`` already are skipped (a union over angles
+    needs nothing more there); a word stops as soon as it covers every
+    missing pixel. Returns the number of words computed.
     """
     ny, nw = union.shape
-    nr = runs.shape[0]
-    cbase = pad_words * 64
+    nr = fr.shape[0]
     done = 0
     for i in range(ny):
         for w in range(nw):
@@ -358,14 +373,12 @@ def dilate_words(tables, pad_rows, pad_words, runs, target, union):  # pragma: n
             if tgt == _U0:
                 continue
             done += 1
+            base = i * nwp + w
             acc = _U0
             for r in range(nr):
-                row = i + pad_rows + runs[r, 0]
-                c = cbase + w * 64 + runs[r, 1]
-                lev = runs[r, 2]
-                v = _read(tables, lev, row, c)
-                if runs[r, 3] >= 0:
-                    v |= _read(tables, lev, row, c + runs[r, 3])
+                v = _flat_read(tflat, fr[r, 0] + base, fr[r, 1])
+                if fr[r, 2] >= 0:
+                    v |= _flat_read(tflat, fr[r, 2] + base, fr[r, 3])
                 acc |= v
                 if (acc & tgt) == tgt:
                     break

@@ -448,15 +448,21 @@ def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dila
     lev_e = 1 + max([r.max_level for r in er] + [union_runs.max_level])
     t_and = np.zeros((lev_e, ny + 2 * pr, nw + 2 * pw), np.uint64)
     _k.build_tables(inp, t_and, pr, pw, True, 0, ny)
+    fa = t_and.reshape(-1)
+    nwp = t_and.shape[2]
+
+    def flat(r: _Runs, table: np.ndarray) -> np.ndarray:
+        return _k.flat_runs(r.table, table.shape, pr, pw)
+
     all_i = np.repeat(np.arange(ny, dtype=np.int64), nw)
     all_w = np.tile(np.arange(nw, dtype=np.int64), ny)
     empty = np.zeros(0, np.uint64)
     # deep: held at every angle (erosion by the union of the kernels); maybe: may be held at
     # some angle (erosion by their intersection); only the words between are computed per angle
     deep = np.empty((ny, nw), np.uint64)
-    _k.erode_words(t_and, pr, pw, union_runs.table, all_i, all_w, last, deep, empty)
+    _k.erode_words(fa, nwp, flat(union_runs, t_and), all_i, all_w, last, deep, empty)
     maybe = np.empty((ny, nw), np.uint64)
-    _k.erode_words(t_and, pr, pw, common_runs.table, all_i, all_w, last, maybe, empty)
+    _k.erode_words(fa, nwp, flat(common_runs, t_and), all_i, all_w, last, maybe, empty)
     del all_i, all_w
     # pixels no angle can reach are dropped from the dilation target, so that words whose
     # remaining pixels are out of reach are not recomputed at every angle
@@ -464,7 +470,8 @@ def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dila
     t_or = np.zeros((lev_d, ny + 2 * pr, nw + 2 * pw), np.uint64)
     _k.build_tables(maybe, t_or, pr, pw, False, 0, ny)
     reach = np.zeros((ny, nw), np.uint64)
-    _k.dilate_words(t_or, pr, pw, reach_runs.table, target, reach)
+    fo = t_or.reshape(-1)
+    _k.dilate_words(fo, nwp, flat(reach_runs, t_or), target, reach)
     band = np.flatnonzero((maybe & ~deep).reshape(-1))
     del maybe
     band_i = (band // nw).astype(np.int64)
@@ -480,16 +487,16 @@ def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dila
     for k in range(n):
         if store:
             sel_i, sel_w = band_i, band_w
-            _k.erode_words(t_and, pr, pw, er[k].table, sel_i, sel_w, last, work, values[k])
+            _k.erode_words(fa, nwp, flat(er[k], t_and), sel_i, sel_w, last, work, values[k])
         else:
             # only P words a dilation can still read need to be right: those near words
             # with target pixels not yet covered (stale words elsewhere are never read)
             sel = _k.near_needy(reach, union, band_i, band_w, radius, rw)
             sel_i, sel_w = band_i[sel], band_w[sel]
-            _k.erode_words(t_and, pr, pw, er[k].table, sel_i, sel_w, last, work, empty)
+            _k.erode_words(fa, nwp, flat(er[k], t_and), sel_i, sel_w, last, work, empty)
         if len(di[k].table):
             _k.update_tables(work, t_or, pr, pw, sel_i, sel_w, False)
-            _k.dilate_words(t_or, pr, pw, di[k].table, reach, union)
+            _k.dilate_words(fo, nwp, flat(di[k], t_or), reach, union)
         tick()
     return _PassResult(union, deep, band_i, band_w, values)
 
