@@ -200,10 +200,14 @@ def _decode(b: bytes) -> str:
     return b.decode("utf-8", errors="replace").strip()
 
 
-def _pick_dialect(data: bytes) -> str:
+def _pick_dialect(data: bytes, n_lines: int) -> str:
+    # lines ending in a lone CR exist only if there are more lines than LFs
+    lone_cr = n_lines > data.count(b"\n") + 1
     best, best_n = "zmoves", 0
     for d, marker in _MARKERS.items():
-        n = data.count(b"\n" + marker) + data.count(b"\r" + marker) + data.startswith(marker)
+        n = data.count(b"\n" + marker) + data.startswith(marker)
+        if lone_cr:
+            n += data.count(b"\r" + marker)
         if n > best_n:
             best, best_n = d, n
     return best
@@ -225,7 +229,7 @@ def scan_comments(data: bytes, line_start: np.ndarray) -> CommentInfo:
             flavor = m.group(1).decode("ascii", "replace").lower()
             break
 
-    dialect = _pick_dialect(data)
+    dialect = _pick_dialect(data, len(line_start) - 1)
     found: dict[str, list[tuple[int, bytes | None]]] = {
         k: [] for k in ("layer", "lz", "z", "h", "feature", "width", "wipe_start", "wipe_end")
     }

@@ -545,3 +545,15 @@ def test_arc_lengths_agree_with_the_slicers_flow(gfiles, name):
     # flow ratios differ between profiles (Orca/Bambu ~0.96-0.98), not between move kinds
     assert np.median(arcs) == pytest.approx(line_ratio, rel=2e-3)
     assert np.mean(np.abs(arcs / line_ratio - 1) < 0.02) > 0.95
+
+
+@pytest.mark.parametrize("eol", [b"\n", b"\r\n", b"\r"])
+def test_layer_markers_with_any_line_ending(eol):
+    data = eol.join([b"G90", b"M83", b";LAYER_CHANGE", b";Z:0.2", b";HEIGHT:0.2",
+                     b";TYPE:Outer wall", b";WIDTH:0.45", b"G1 X0 Y0 Z0.2", b"G1 X10 E1",
+                     b";LAYER_CHANGE", b";Z:0.4", b"G1 Z0.4", b"G1 X0 E1"]) + eol
+    g = parse_gcode(data)
+    assert g.dialect == "prusa" and g.layers["z"].tolist() == [0.2, 0.4]
+    assert g.layers["height"].tolist() == pytest.approx([0.2, 0.2])
+    assert g.moves["width"].tolist() == [0.45] * 4 and g.features == ("Outer wall",)
+    assert g.to_bytes() == data
