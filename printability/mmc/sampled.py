@@ -648,9 +648,38 @@ def _sweep(
                                     step_rad=step_rad, nozzle_radius=nozzle_radius,
                                     check=fine_outer if kind == "prismatic" else None)
         excess = max(excess, exc)
-        # a revolute group that failed is retried pairwise (its hull bulges more than its
-        # pairs'); a translation's hull is its exact sweep, so its pairs would fail too
         bad = np.flatnonzero(~kept & (b_a - a_a > 1))
+        if verify and kind == "prismatic":
+            # a translation's hull is its exact sweep: it fails because some placement
+            # grazes ∂G, most often an end of the run. Try the run without its first
+            # and/or last sample, then halves, down to single steps.
+            rows_q, a_q, b_q = rows_a[bad], a_a[bad], b_a[bad]
+            while len(rows_q):
+                tries = [(a_q, b_q - 1), (a_q + 1, b_q), (a_q + 1, b_q - 1)]
+                left = np.ones(len(rows_q), dtype=bool)
+                for ta, tb in tries:
+                    sel = np.flatnonzero(left & (tb - ta >= 1))
+                    if not len(sel):
+                        continue
+                    ok_t, _ = _sweep_segments(space, ids2, rows_q[sel], ta[sel], tb[sel], n, j,
+                                              base, g, verify=True, out=out, covered=covered,
+                                              step_rad=0.0, nozzle_radius=nozzle_radius,
+                                              check=fine_outer)
+                    left[sel[ok_t]] = False
+                split = np.flatnonzero(left & (b_q - a_q >= 4))
+                mid = (a_q[split] + b_q[split]) // 2
+                rows_q = np.concatenate([rows_q[split], rows_q[split]])
+                a_q, b_q = (np.concatenate([a_q[split], mid]),
+                            np.concatenate([mid, b_q[split]]))
+                if len(rows_q):
+                    ok_h, _ = _sweep_segments(space, ids2, rows_q, a_q, b_q, n, j, base, g,
+                                              verify=True, out=out, covered=covered,
+                                              step_rad=0.0, nozzle_radius=nozzle_radius,
+                                              check=fine_outer)
+                    keep_q = ~ok_h & (b_q - a_q > 1)
+                    rows_q, a_q, b_q = rows_q[keep_q], a_q[keep_q], b_q[keep_q]
+        # a revolute group that failed is retried pairwise (its hull bulges more than
+        # its pairs')
         if verify and kind != "prismatic" and len(bad):
             spans = b_a[bad] - a_a[bad]
             pr = np.repeat(rows_a[bad], spans)
