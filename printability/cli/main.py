@@ -21,8 +21,6 @@ __all__ = ["app", "main"]
 
 # Subcommand modules, in help order. Each defines register(app: typer.Typer).
 SUBCOMMANDS: tuple[str, ...] = (
-    "printability.cli.analyze",
-    "printability.cli.stream",
     "printability.cli.simulate",
     "printability.cli.postprocess",
 )
@@ -44,7 +42,7 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(
-    version: bool = typer.Option(
+    version: bool = typer.Option(  # noqa: B008
         False, "--version", callback=_version, is_eager=True, help="Show the version and exit."
     ),
 ) -> None:
@@ -62,23 +60,26 @@ def error_paragraph(exc: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the process exit code.
-
-    Typer (in standalone mode) prints usage errors itself and exits with 2;
-    printability's own errors reach us as exceptions and become one paragraph
-    on stderr with exit code 1. Anything else is a bug and keeps its traceback.
-    """
+    """Run the CLI; returns the process exit code."""
     try:
-        app(args=argv, prog_name="printability", standalone_mode=True)
-    except SystemExit as exc:
-        code = exc.code
-        return code if isinstance(code, int) else (0 if code is None else 1)
+        app(args=argv, standalone_mode=False)
     except PrintabilityError as exc:
         print(error_paragraph(exc), file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("printability: interrupted", file=sys.stderr)
         return 130
+    except typer.Exit as exc:
+        return int(exc.exit_code or 0)
+    except (typer.Abort,):
+        return 1
+    except Exception as exc:  # click usage errors
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            return exc.exit_code
+        raise
     return 0
 
 
