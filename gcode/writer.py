@@ -85,7 +85,9 @@ class WriterOptions:
     bead_model
         ``rounded`` (Slic3r's rectangle with semicircular ends) or ``rectangle``.
     xy_decimals, e_decimals, angle_decimals, feed_decimals
-        Precision of X/Y/Z, E, the rotary word and F.
+        Precision of X/Y/Z, E, the rotary word and F. Planners must leave
+        the rounding of X/Y (up to √2/2·10^-xy_decimals mm) out of their
+        tolerance: see :attr:`rounding`.
     """
 
     letter: str = "C"
@@ -98,7 +100,7 @@ class WriterOptions:
     relative_e: bool = True
     filament_diameter: float = 1.75
     bead_model: str = "rounded"
-    xy_decimals: int = 3
+    xy_decimals: int = 4
     e_decimals: int = 5
     angle_decimals: int = 3
     feed_decimals: int = 0
@@ -114,6 +116,11 @@ class WriterOptions:
                              f"{', '.join(BEAD_MODELS)}")
         if self.period < 0 or self.angle_max < self.angle_min:
             raise ValueError("rotary period must be >= 0 and angle_max >= angle_min")
+
+    @property
+    def rounding(self) -> float:
+        """Largest XY displacement the rounding of coordinates can cause, mm."""
+        return math.sqrt(2.0) / 2.0 * 10.0 ** -self.xy_decimals
 
     @property
     def rotary(self) -> bool:
@@ -304,7 +311,8 @@ class Emitter:
 
     def extrude(self, x: float, y: float, *, feed: float, width: float | None = None,
                 height: float | None = None, e: float | None = None,
-                orientation: float | None = None, comment: str | None = None) -> float:
+                orientation: float | None = None, turn_while_moving: bool = False,
+                comment: str | None = None) -> float:
         """An extruding straight move at a constant orientation.
 
         Parameters
@@ -321,6 +329,10 @@ class Emitter:
         orientation
             Nozzle orientation during the move, degrees; when it differs from
             the current one a rotation-only move is emitted first.
+        turn_while_moving
+            Turn to ``orientation`` *during* the move instead (the rotary word
+            goes on the extruding line); only for turns the caller checked
+            with the turning footprint.
 
         Returns
         -------
@@ -335,9 +347,16 @@ class Emitter:
             if width is None or height is None:
                 raise ValueError("extrude() needs e= or both width= and height=")
             e = length * float(e_per_mm(width, height, o.filament_diameter, model=o.bead_model))
+        extra: list[str] = []
+        step = 0.0
         if orientation is not None:
-            self.rotate(orientation)
-        self._move("G1", x, y, None, [self._e_word(e)], feed, 0.0, length, comment)
+            if turn_while_moving:
+                extra, step = self._rotary(orientation)
+                if step:
+                    self.rotations += 1
+            else:
+                self.rotate(orientation)
+        self._move("G1", x, y, None, [*extra, self._e_word(e)], feed, step, length, comment)
         return e
 
     def arc(self, x: float, y: float, i: float, j: float, *, clockwise: bool, feed: float,

@@ -387,7 +387,8 @@ def postprocess_bytes(
         idx = order[bounds[k]:bounds[k + 1]]
         p0 = np.column_stack([seg["x0"][idx], seg["y0"][idx]])
         p1 = np.column_stack([seg["x1"][idx], seg["y1"][idx]])
-        tgt = grown_target(targets[k], options.tolerance)
+        # new lines are rounded to 4 decimals: keep that displacement inside the tolerance
+        tgt = grown_target(targets[k], options.tolerance - wopts.rounding)
         sm = seg_move[idx]
         chained = np.zeros(idx.size, dtype=bool)
         if idx.size > 1 and policy == "xy":
@@ -532,7 +533,7 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
     cur = 0.0  # rotary coordinate
     last_travel_chunk: int | None = None  # chunk index of a travel we may fold C into
     fold = wopts.feed_policy == "xy"
-    xd = 3
+    xd = wopts.xy_decimals
     ed = 5
     turned: dict[int, int] = {}
     d_ang = wopts.angle_decimals

@@ -238,14 +238,16 @@ def swept_footprints(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: 
     if scale is not None:
         h = h * np.asarray(scale, dtype=float)[:, None]
     h = h + np.maximum(cu * p0[:, :1] + su * p0[:, 1:2], cu * p1[:, :1] + su * p1[:, 1:2])
-    hn = np.roll(h, -1, axis=1)
-    cn, sn = np.roll(cu, -1, axis=1), np.roll(su, -1, axis=1)
+    # vertex j is where the tangent lines j and j+1 cross; the ring closes on itself
+    hh = np.concatenate([h, h[:, :1]], axis=1)
+    cc = np.concatenate([cu, cu[:, :1]], axis=1)
+    ss = np.concatenate([su, su[:, :1]], axis=1)
     det = math.sin(2 * math.pi / directions)
-    x = (h * sn - hn * su) / det
-    y = (cu * hn - cn * h) / det
-    ring = np.stack([x, y], axis=-1)
-    ring = np.concatenate([ring, ring[:, :1]], axis=1)
-    return shapely.polygons(ring.reshape(n, directions + 1, 2))
+    ring = np.empty((n, directions + 1, 2))
+    ring[:, :-1, 0] = (hh[:, :-1] * ss[:, 1:] - hh[:, 1:] * ss[:, :-1]) / det
+    ring[:, :-1, 1] = (cc[:, :-1] * hh[:, 1:] - cc[:, 1:] * hh[:, :-1]) / det
+    ring[:, -1] = ring[:, 0]
+    return shapely.polygons(ring)
 
 
 def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1: np.ndarray,
@@ -314,10 +316,6 @@ def _reachable(phi: np.ndarray, machine: Machine, period: float) -> np.ndarray:
         return np.ones(phi.shape, dtype=bool)
     k = np.ceil((lo - phi) / period - 1e-12)
     return phi + k * period <= hi + 1e-9
-
-
-def _nearest(phi: float, prev: float, period: float) -> float:
-    return phi + period * round((prev - phi) / period)
 
 
 def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: Nozzle,
@@ -451,24 +449,22 @@ def plan_orientations(
     if bad.size:
         cands = candidate_orientations(machine, nozzle, step=options.search_step) if turns \
             else np.array([0.0])
-        chain_prev = np.concatenate([[previous], angle[:-1]])
-        badset = set(bad.tolist())
-        for i in bad.tolist():
-            # the previous move's final orientation (it may itself have been searched)
-            prev_i = float(angle[i - 1]) if (i > 0 and i - 1 in badset
-                                             and np.isfinite(angle[i - 1])) else \
-                float(chain_prev[i]) if np.isfinite(chain_prev[i]) else previous
-            best = _search_one(prepared_target, pieces, p0[i], p1[i], float(direction[i]),
-                               float(widths[i]), prev_i, cands, beta, wtab, per, options,
-                               None if scale is None else float(scale[i]))
-            if best is not None:
-                angle[i] = best
-                continue
-            result_pieces[int(i)] = _split(prepared_target, pieces, p0[i], p1[i], direction[i],
-                                           widths[i], prev_i, cands, beta, wtab, per,
-                                           nozzle, options,
-                                           None if scale is None else scale[i])
-            angle[i] = np.nan
+        # turn least relative to the preferred chain (smooth along curves); the
+        # smoothing pass below re-chains the orientations the search chose
+        prev_bad = np.concatenate([[previous], angle[:-1]])[bad]
+        sc = None if scale is None else scale[bad]
+        found, best = _search(prepared_target, pieces, p0[bad], p1[bad], direction[bad],
+                              widths[bad], prev_bad, cands, beta, wtab, per, options, sc)
+        angle[bad[found]] = best[found]
+        rest = ~found
+        if rest.any():
+            split = _split_many(prepared_target, pieces, p0[bad[rest]], p1[bad[rest]],
+                                direction[bad[rest]], widths[bad[rest]], prev_bad[rest], cands,
+                                beta, wtab, per, nozzle, options,
+                                None if sc is None else sc[rest])
+            for i, plist in zip(bad[rest].tolist(), split, strict=True):
+                result_pieces[int(i)] = plist
+                angle[i] = np.nan
     if turns and n > 1:
         angle = _smooth(angle, bad, c1, c2, per, previous, prepared_target, pieces, p0, p1,
                         scale, machine)
@@ -531,52 +527,12 @@ def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scal
 
 
 def grown_target(target: BaseGeometry, tolerance: float) -> BaseGeometry:
-    """G grown by ``tolerance`` (mm) and prepared for repeated predicates."""
+    """G grown by ``tolerance`` (mm; negative shrinks it) and prepared for repeated predicates."""
     if target is None or target.is_empty:
         raise InputError("the layer target is empty: there is nothing a move could fit in")
-    g = target.buffer(tolerance, quad_segs=8) if tolerance > 0 else target
+    g = target.buffer(tolerance, quad_segs=8) if tolerance != 0 else target
     shapely.prepare(g)
     return g
-
-
-def _costs(direction, widths, prev, cands, beta, wtab, per, options):
-    """(k, c) ranking keys of each candidate orientation for each move."""
-    phis = direction[:, None] * 0 + cands[None, :]
-    rel = np.mod(phis - direction[:, None], 360.0)
-    w = np.interp(rel, np.append(beta, 360.0), np.append(wtab, wtab[0]))
-    werr = np.abs(w - np.where(np.isnan(widths), 0.0, widths)[:, None])
-    werr = np.where(np.isnan(widths)[:, None], 0.0, werr)
-    near = phis + per * np.round((prev[:, None] - phis) / per)
-    turn = np.abs(near - prev[:, None])
-    best_err = werr.min(axis=1, keepdims=True)
-    # width first (within a slack), then the turn
-    key = np.floor((werr - best_err) / max(options.width_slack, 1e-9)) * 1e3 + turn
-    return near, key
-
-
-def _search_one(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, options,
-                scale=None) -> float | None:
-    """The cheapest orientation that fits one move, or None.
-
-    Cost: width error over ``width_slack`` plus the turn from ``prev`` over
-    30° (a 30° turn weighs as much as a width error of ``width_slack``).
-    Candidates are tested in cost order: the four cheapest first, then all.
-    """
-    near, werr, turn = _cost_terms(np.array([direction]), np.array([width]), np.array([prev]),
-                                   cands, beta, wtab, per)
-    key = werr[0] / max(options.width_slack, 1e-9) + turn[0] / 30.0
-    order = np.argsort(key, kind="stable")
-    for chunk in (order[:4], order[4:]):
-        if chunk.size == 0:
-            continue
-        phis = near[0, chunk]
-        m = len(chunk)
-        ok = fits(target, pieces, np.repeat(a[None, :], m, axis=0),
-                  np.repeat(b[None, :], m, axis=0), phis,
-                  scale=None if scale is None else np.full(m, scale))
-        if ok.any():
-            return float(phis[int(np.argmax(ok))])
-    return None
 
 
 def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
@@ -592,20 +548,30 @@ def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
 
 def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, per, options,
             scale=None):
-    """Try the candidate orientations in rounds of increasing cost."""
+    """Vectorised search over many moves: the four cheapest orientations of each, then all.
+
+    Cost: width error over ``width_slack`` plus the turn from ``prev`` over 30° (a 30°
+    turn weighs as much as a width error of ``width_slack``).
+
+    Returns
+    -------
+    found : bool array
+    best : orientation per move (NaN where none fits)
+    """
     k = len(p0)
-    near, key = _costs(direction, widths, prev, cands, beta, wtab, per, options)
-    order = np.argsort(key, axis=1, kind="stable")
     found = np.zeros(k, dtype=bool)
     best = np.full(k, np.nan)
-    start = 0
-    size = 2
+    if k == 0:
+        return found, best
+    near, werr, turn = _cost_terms(direction, widths, prev, cands, beta, wtab, per)
+    key = werr / max(options.width_slack, 1e-9) + turn / 30.0
+    order = np.argsort(key, axis=1, kind="stable")
     ncand = len(cands)
-    while start < ncand:
+    for start, stop in ((0, min(4, ncand)), (min(4, ncand), ncand)):
         todo = np.flatnonzero(~found)
-        if todo.size == 0:
-            break
-        cols = order[todo, start:start + size]  # (t, s)
+        if todo.size == 0 or stop <= start:
+            continue
+        cols = order[todo, start:stop]  # (t, s)
         rows = np.repeat(todo, cols.shape[1])
         phis = near[rows, cols.ravel()]
         ok = fits(target, pieces, p0[rows], p1[rows], phis,
@@ -615,62 +581,83 @@ def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, 
         sel = todo[hit]
         best[sel] = near[sel, cols[hit, first[hit]]]
         found[sel] = True
-        start += size
-        size *= 2
     return found, best
 
 
-def _split(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
-           options, scale=None) -> list[OrientedPiece]:
-    """Keep the parts of a move that fit somewhere; drop the rest.
+def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
+                options, scale=None) -> list[list[OrientedPiece]]:
+    """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
     A move usually fails because one end pokes out at a corner: first the
     longest sub-interval that fits at one of the four cheapest orientations is
     found among intervals trimmed at the start, the end or both by
-    geometrically growing lengths (one vectorised test); the trimmed-off
-    parts are then cut into pieces no longer than ``split_length`` and each
-    piece is searched alone.
+    geometrically growing lengths; the trimmed-off parts are then cut into
+    pieces no longer than ``split_length`` and each piece is searched alone.
+    Two vectorised searches in all, whatever the number of moves.
     """
-    length = float(np.hypot(*(b - a)))
+    n = len(a)
     step = options.split_length or max(0.05, nozzle.radius / 4)
-    prev = prev if not math.isnan(prev) else 0.0
-    if length <= 4 * step:
-        return _pieces(target, pieces, a, b, 0.0, 1.0, direction, width, prev, cands, beta,
-                       wtab, per, step, options, scale)
-    near, werr, turn = _cost_terms(np.array([direction]), np.array([width]), np.array([prev]),
-                                   cands, beta, wtab, per)
-    key = werr[0] / max(options.width_slack, 1e-9) + turn[0] / 30.0
-    top = near[0, np.argsort(key, kind="stable")[:4]]
-    deltas = []
-    d = step / length
-    while d < 0.5:
-        deltas.append(d)
-        d *= 2.0
-    iv = [(t0, t1) for dd in deltas for (t0, t1) in ((dd, 1.0), (0.0, 1.0 - dd), (dd, 1.0 - dd))]
-    t0s = np.array([t for t, _ in iv])
-    t1s = np.array([t for _, t in iv])
-    rows = np.repeat(np.arange(len(iv)), len(top))
-    phis = np.tile(top, len(iv))
-    q0 = a + t0s[rows, None] * (b - a)
-    q1 = a + t1s[rows, None] * (b - a)
-    ok = fits(target, pieces, q0, q1, phis,
-              scale=None if scale is None else np.full(len(rows), scale))
-    if not ok.any():
-        return _pieces(target, pieces, a, b, 0.0, 1.0, direction, width, prev, cands, beta,
-                       wtab, per, step, options, scale)
-    span = (t1s - t0s)[rows]
-    span = np.where(ok, span, -1.0)
-    j = int(np.argmax(span))  # longest; ties: first = cheapest orientation
-    t0, t1, phi = float(t0s[rows[j]]), float(t1s[rows[j]]), float(phis[j])
-    out: list[OrientedPiece] = []
-    if t0 > 0:
-        out += _pieces(target, pieces, a, b, 0.0, t0, direction, width, prev, cands, beta,
-                       wtab, per, step, options, scale)
-    out.append(OrientedPiece(t0, t1, phi))
-    if t1 < 1:
-        out += _pieces(target, pieces, a, b, t1, 1.0, direction, width, phi, cands, beta,
-                       wtab, per, step, options, scale)
-    return _merge(out)
+    length = np.hypot(*(b - a).T)
+    prev = np.where(np.isnan(prev), 0.0, prev)
+    near, werr, turn = _cost_terms(direction, width, prev, cands, beta, wtab, per)
+    key = werr / max(options.width_slack, 1e-9) + turn / 30.0
+    top = np.take_along_axis(near, np.argsort(key, axis=1, kind="stable")[:, :4], axis=1)
+    # candidate intervals per move
+    mv, t0s, t1s = [], [], []
+    for i in range(n):
+        if length[i] <= 4 * step:
+            continue
+        d = step / length[i]
+        while d < 0.5:
+            for t0, t1 in ((d, 1.0), (0.0, 1.0 - d), (d, 1.0 - d)):
+                mv.append(i)
+                t0s.append(t0)
+                t1s.append(t1)
+            d *= 2.0
+    keep = [(0.0, 0.0, np.nan)] * n  # (t0, t1, angle) of the kept middle interval
+    if mv:
+        mv_a = np.repeat(np.array(mv), top.shape[1])
+        col = np.tile(np.arange(top.shape[1]), len(mv))
+        t0a = np.repeat(np.array(t0s), top.shape[1])
+        t1a = np.repeat(np.array(t1s), top.shape[1])
+        phis = top[mv_a, col]
+        q0 = a[mv_a] + t0a[:, None] * (b - a)[mv_a]
+        q1 = a[mv_a] + t1a[:, None] * (b - a)[mv_a]
+        ok = fits(target, pieces, q0, q1, phis,
+                  scale=None if scale is None else scale[mv_a])
+        span = np.where(ok, t1a - t0a, -1.0)
+        for i in np.unique(mv_a[ok]).tolist():
+            rows = np.flatnonzero(mv_a == i)
+            j = rows[int(np.argmax(span[rows]))]
+            keep[i] = (float(t0a[j]), float(t1a[j]), float(phis[j]))
+    # the rest of every move in pieces of at most `step`
+    pm, pt0, pt1 = [], [], []
+    for i in range(n):
+        t0, t1, _ = keep[i]
+        ranges = [(0.0, 1.0)] if t1 <= t0 else [(0.0, t0), (t1, 1.0)]
+        for ra, rb in ranges:
+            if rb - ra <= 1e-12:
+                continue
+            m = max(1, math.ceil(length[i] * (rb - ra) / step))
+            t = np.linspace(ra, rb, m + 1)
+            pm += [i] * m
+            pt0 += t[:-1].tolist()
+            pt1 += t[1:].tolist()
+    out: list[list[OrientedPiece]] = [[] for _ in range(n)]
+    for i in range(n):
+        if keep[i][1] > keep[i][0]:
+            out[i].append(OrientedPiece(*keep[i]))
+    if pm:
+        pm_a = np.array(pm)
+        pt0_a, pt1_a = np.array(pt0), np.array(pt1)
+        q0 = a[pm_a] + pt0_a[:, None] * (b - a)[pm_a]
+        q1 = a[pm_a] + pt1_a[:, None] * (b - a)[pm_a]
+        found, best = _search(target, pieces, q0, q1, direction[pm_a], width[pm_a], prev[pm_a],
+                              cands, beta, wtab, per, options,
+                              None if scale is None else scale[pm_a])
+        for k in np.flatnonzero(found).tolist():
+            out[pm[k]].append(OrientedPiece(pt0[k], pt1[k], float(best[k])))
+    return [_merge(sorted(o, key=lambda p: p.t0)) for o in out]
 
 
 def _merge(pieces: list[OrientedPiece]) -> list[OrientedPiece]:
@@ -683,17 +670,3 @@ def _merge(pieces: list[OrientedPiece]) -> list[OrientedPiece]:
     return out
 
 
-def _pieces(target, pieces, a, b, ta, tb, direction, width, prev, cands, beta, wtab, per,
-            step, options, scale) -> list[OrientedPiece]:
-    """Cut [ta, tb] of a move into pieces of at most ``step`` mm; keep those that fit."""
-    length = float(np.hypot(*(b - a))) * (tb - ta)
-    m = max(1, math.ceil(length / step))
-    t = np.linspace(ta, tb, m + 1)
-    q0 = a + t[:-1, None] * (b - a)
-    q1 = a + t[1:, None] * (b - a)
-    found, best = _search(target, pieces, q0, q1, np.full(m, direction), np.full(m, width),
-                          np.full(m, prev), cands, beta, wtab, per, options,
-                          None if scale is None else np.full(m, scale))
-    out = [OrientedPiece(float(t[i]), float(t[i + 1]), float(best[i]))
-           for i in range(m) if found[i]]
-    return _merge(out)

@@ -1,0 +1,374 @@
+"""Generate a complete G-code file for a T-T-R machine from layers (``printability generate``).
+
+For every layer of a :class:`~printability.layers.LayerStack` (an STL sliced
+by :func:`printability.sources.load_layers`, slice outlines, a drawing...):
+
+1. perimeters and infill are laid out inside G
+   (:mod:`printability.motion.toolpaths`): walls at the nozzle's narrowest
+   bead, infill at its widest;
+2. every move gets the orientation laying the planned width that keeps the
+   swept nozzle inside G, turning least; what no orientation can print is cut
+   away (:func:`printability.motion.orientation.plan_orientations`, the same
+   MMC-safe planner as the post-processor);
+3. groups are ordered by a greedy TSP tour (networkx);
+4. the writer (:class:`gcode.writer.Emitter`) emits it with the machine's
+   flavor, feed policy, rotary letter and limits, E from the bead
+   cross-section actually laid (the width at the chosen orientation), and the
+   temperatures, speeds and retraction of the machine profile's
+   ``[temperatures]``, ``[speeds]``, ``[retraction]`` and ``[gcode]`` tables
+   (see ``printability/data/machines/ttr.toml``).
+
+The file carries PrusaSlicer-style ``;LAYER_CHANGE`` / ``;Z:`` / ``;HEIGHT:`` /
+``;TYPE:`` / ``;WIDTH:`` comments, so :mod:`gcode` (and ``printability
+analyze``) read it back, and it is written atomically.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+import shapely.affinity
+
+from gcode.writer import Emitter, WriterOptions, header_lines
+from printability import __version__
+from printability.errors import InputError, PrintabilityOSError
+from printability.layers import LayerStack
+from printability.machine import Machine, parse_machine
+from printability.motion.orientation import (
+    OrientationOptions,
+    grown_target,
+    plan_orientations,
+)
+from printability.motion.toolpaths import infill_lines, order_groups, perimeter_loops
+from printability.nozzle import Nozzle, parse_nozzle
+from printability.options import BEAD_MODELS, FEED_POLICIES
+
+__all__ = ["GenerateOptions", "GenerateResult", "generate_file", "generate_gcode"]
+
+_TYPE_NAMES = {"outer_wall": "External perimeter", "inner_wall": "Perimeter",
+               "sparse_infill": "Internal infill"}
+
+_DEFAULT_START = {
+    "marlin": ["M140 S{first_layer_bed}", "M104 S{first_layer_nozzle}", "G28",
+               "M190 S{first_layer_bed}", "M109 S{first_layer_nozzle}"],
+    "klipper": ["M140 S{first_layer_bed}", "M104 S{first_layer_nozzle}", "G28",
+                "M190 S{first_layer_bed}", "M109 S{first_layer_nozzle}"],
+    "reprap": ["M140 S{first_layer_bed}", "G10 P0 S{first_layer_nozzle} R{first_layer_nozzle}",
+               "T0", "G28", "M116"],
+    "generic": ["M140 S{first_layer_bed}", "M104 S{first_layer_nozzle}", "G28",
+                "M190 S{first_layer_bed}", "M109 S{first_layer_nozzle}"],
+}
+_DEFAULT_END = {
+    "marlin": ["M104 S0", "M140 S0", "G91", "G1 Z5 F600", "G90", "M84"],
+    "klipper": ["M104 S0", "M140 S0", "G91", "G1 Z5 F600", "G90", "M84"],
+    "reprap": ["G10 P0 S0 R0", "M140 S0", "G91", "G1 Z5 F600", "G90", "M84"],
+    "generic": ["M104 S0", "M140 S0", "G91", "G1 Z5 F600", "G90", "M84"],
+}
+
+
+@dataclass(frozen=True)
+class GenerateOptions:
+    """How to lay out and write the part.
+
+    Attributes
+    ----------
+    perimeters
+        Number of wall loops.
+    infill_angle
+        Direction of the infill lines on the first layer, degrees (turned
+        by 90° every layer).
+    infill_spacing
+        Distance between infill lines, mm (None: the widest bead the nozzle lays).
+    wall_width
+        Planned wall bead width, mm (None: the narrowest bead the nozzle lays).
+    feed_policy, letter
+        Override the machine's.
+    unwind
+        Cabled head: bring the rotary axis back towards 0 on travel moves.
+    relative_e
+        M83 (True) or M82.
+    tolerance
+        How far the swept nozzle may stand outside G, mm.
+    center
+        Move the part to the middle of the machine's bed (when the profile
+        has a ``[bed]``); otherwise the part keeps its own coordinates.
+    """
+
+    perimeters: int = 2
+    infill_angle: float = 45.0
+    infill_spacing: float | None = None
+    wall_width: float | None = None
+    feed_policy: str | None = None
+    letter: str | None = None
+    unwind: bool = False
+    relative_e: bool = True
+    tolerance: float = 1e-3
+    center: bool = True
+    orientation: OrientationOptions = field(default_factory=OrientationOptions)
+
+
+@dataclass(frozen=True)
+class GenerateResult:
+    """What was generated (lengths in mm, areas in mm²)."""
+
+    path: str | None
+    layers: int
+    lines: int
+    extruded_length: float
+    dropped_length: float
+    rotations: int
+    elapsed: float
+    summary: tuple[dict[str, float], ...]
+
+
+def _profile(machine: Machine, table: str) -> Mapping[str, Any]:
+    value = machine.profile.get(table, {}) if machine.profile else {}
+    if not isinstance(value, Mapping):
+        raise InputError(f"machine {machine.name!r}: [{table}] must be a table")
+    return value
+
+
+def _num(machine: Machine, table: str, key: str, default: float) -> float:
+    v = _profile(machine, table).get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+        raise InputError(f"machine {machine.name!r}: [{table}] {key} expects a non-negative "
+                         f"number; found {v!r}")
+    return float(v)
+
+
+def _template(machine: Machine, key: str, default: list[str], values: Mapping[str, float]):
+    text = _profile(machine, "gcode").get(key)
+    lines = default if text is None else str(text).splitlines()
+    out = []
+    for ln in lines:
+        for k, v in values.items():
+            ln = ln.replace("{" + k + "}", f"{v:g}")
+        out.append(ln)
+    return out
+
+
+def generate_gcode(
+    layers: LayerStack,
+    nozzle: str | Nozzle,
+    machine: str | Machine = "ttr",
+    *,
+    options: GenerateOptions = GenerateOptions(),
+) -> tuple[str, GenerateResult]:
+    """Plan and write the G-code of a part.
+
+    Parameters
+    ----------
+    layers
+        The part's layers (a planar input of height 0 gets the wall width as
+        its layer height).
+    nozzle, machine
+        SPECs or objects; the machine's profile gives flavor, feed policy,
+        rotary letter and limits, temperatures, speeds, retraction, start/end G-code.
+    options
+        See :class:`GenerateOptions`.
+
+    Returns
+    -------
+    (text, GenerateResult)
+
+    Raises
+    ------
+    InputError
+        Bad options or profile values.
+    """
+    t_start = time.perf_counter()
+    noz = parse_nozzle(nozzle)
+    mach = parse_machine(machine)
+    if options.perimeters < 0:
+        raise InputError(f"perimeters must be >= 0; got {options.perimeters}")
+    period = noz.symmetry_period
+    turns = mach.kind == "ttr" and period != 0.0
+    policy = FEED_POLICIES.check(options.feed_policy or mach.feed_policy)
+    bead_model = str(_profile(mach, "extruder").get("bead_model", "rounded"))
+    bead_model = BEAD_MODELS.check(bead_model)
+    full = mach.kind == "ttr" and mach.full_turn and not options.unwind
+    wopts = WriterOptions(
+        letter=(options.letter or mach.rotary_letter).upper(),
+        period=period if turns else 0.0,
+        angle_min=-math.inf if full else (mach.angle_min if mach.kind == "ttr" else 0.0),
+        angle_max=math.inf if full else (mach.angle_max if mach.kind == "ttr" else 0.0),
+        unwind=options.unwind, feed_policy=policy, relative_e=options.relative_e,
+        filament_diameter=mach.filament_diameter, bead_model=bead_model,
+        rotary_feed=60.0 * _num(mach, "speeds", "rotary", 180.0),
+    )
+    temps = {
+        "nozzle": _num(mach, "temperatures", "nozzle", 210.0),
+        "bed": _num(mach, "temperatures", "bed", 60.0),
+    }
+    temps["first_layer_nozzle"] = _num(mach, "temperatures", "first_layer_nozzle", temps["nozzle"])
+    temps["first_layer_bed"] = _num(mach, "temperatures", "first_layer_bed", temps["bed"])
+    v_per = 60.0 * _num(mach, "speeds", "perimeter", 30.0)
+    v_inf = 60.0 * _num(mach, "speeds", "infill", 50.0)
+    v_trav = 60.0 * _num(mach, "speeds", "travel", 150.0)
+    v_first = 60.0 * _num(mach, "speeds", "first_layer", 20.0)
+    r_len = _num(mach, "retraction", "length", 0.8)
+    r_feed = 60.0 * _num(mach, "retraction", "speed", 35.0)
+    r_min = _num(mach, "retraction", "min_travel", 1.0)
+    lift = _num(mach, "retraction", "lift", 0.0)
+    flavor = mach.flavor
+
+    w_wall = options.wall_width or noz.min_width
+    w_fill = options.infill_spacing or noz.max_width
+    if w_wall <= 0 or w_fill <= 0:
+        raise InputError("wall width and infill spacing must be positive lengths in mm")
+
+    em = Emitter(wopts)
+    em.comment("generated by printability " + __version__)
+    em.extend(_template(mach, "start", _DEFAULT_START[flavor], temps))
+    em.preamble()
+    if turns:
+        em.raw(f"G92 {wopts.letter}0 ; the nozzle's current orientation is angle 0")
+    shift = (0.0, 0.0)
+    if options.center and mach.bed is not None:
+        bounds = np.array([layer.region.bounds for layer in layers])
+        cx = (bounds[:, 0].min() + bounds[:, 2].max()) / 2
+        cy = (bounds[:, 1].min() + bounds[:, 3].max()) / 2
+        shift = ((mach.bed[0] + mach.bed[1]) / 2 - cx, (mach.bed[2] + mach.bed[3]) / 2 - cy)
+    pos = np.array([0.0, 0.0])
+    summary: list[dict[str, float]] = []
+    extruded = dropped = 0.0
+    prev_angle = 0.0
+    for li, layer in enumerate(layers):
+        h = layer.height if layer.height > 0 else w_wall / 2
+        region = layer.region
+        if shift != (0.0, 0.0):
+            region = shapely.affinity.translate(region, *shift)
+        walls, interior = perimeter_loops(region, w_wall, options.perimeters)
+        fill = infill_lines(interior, w_fill, options.infill_angle + 90.0 * (li % 2))
+        groups = order_groups(walls + fill, pos)
+        # coordinates are rounded when written: keep that displacement inside the tolerance
+        tgt = grown_target(region, options.tolerance - wopts.rounding)
+        em.raw(";LAYER_CHANGE")
+        em.raw(f";Z:{layer.z:g}")
+        em.raw(f";HEIGHT:{h:g}")
+        if li == 1:
+            em.raw(f"M104 S{temps['nozzle']:g}")
+            em.raw(f"M140 S{temps['bed']:g}")
+        layer_drop = 0.0
+        layer_len = 0.0
+        first_move = True
+        for grp in groups:
+            # one planning call per group: its chords in print order
+            chords = [(p[:-1], p[1:]) for p in grp.paths]
+            p0 = np.vstack([c[0] for c in chords])
+            p1 = np.vstack([c[1] for c in chords])
+            path_id = np.concatenate([np.full(len(c[0]), k) for k, c in enumerate(chords)])
+            keep = np.hypot(*(p1 - p0).T) > 1e-6
+            p0, p1, path_id = p0[keep], p1[keep], path_id[keep]
+            if len(p0) == 0:
+                continue
+            chained = np.zeros(len(p0), dtype=bool)
+            chained[1:] = path_id[1:] == path_id[:-1]
+            plan = plan_orientations(p0, p1, np.full(len(p0), grp.width), region, noz, mach,
+                                     options=options.orientation, previous=prev_angle,
+                                     prepared_target=tgt,
+                                     chained=chained if policy == "xy" else None)
+            feed = v_first if li == 0 else (v_inf if grp.kind == "sparse_infill" else v_per)
+            em.raw(f";TYPE:{_TYPE_NAMES[grp.kind]}")
+            em.raw(f";WIDTH:{grp.width:g}")
+            for i in range(len(p0)):
+                seg_len = float(np.hypot(*(p1[i] - p0[i])))
+                layer_len += seg_len
+                if i in plan.pieces:
+                    pieces = [(p.t0, p.t1, p.angle) for p in plan.pieces[i]]
+                    layer_drop += seg_len * (1 - sum(b - a for a, b, _ in pieces))
+                else:
+                    pieces = [(0.0, 1.0, float(plan.angle[i]))]
+                for t0, t1, phi in pieces:
+                    a = p0[i] + t0 * (p1[i] - p0[i])
+                    b = p0[i] + t1 * (p1[i] - p0[i])
+                    if em.x is None or math.hypot(a[0] - em.x, a[1] - em.y) > 1e-6 or \
+                            first_move:
+                        _travel(em, a, layer.z, phi if turns else None, v_trav, r_len, r_feed,
+                                r_min, lift)
+                        first_move = False
+                    direction = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
+                    w = noz.bead_width(direction, phi) if turns else grp.width
+                    w = min(w, grp.width) if not turns else w
+                    whole = i not in plan.pieces
+                    em.extrude(float(b[0]), float(b[1]), feed=feed, width=w, height=h,
+                               orientation=phi if turns else None,
+                               turn_while_moving=bool(whole and plan.fold[i]))
+                    extruded += math.hypot(*(b - a))
+                    if turns:
+                        prev_angle = phi
+            pos = np.array([em.x, em.y])
+        dropped += layer_drop
+        summary.append({"z": layer.z, "target_area": layer.area,
+                        "lost_area": layer_drop * w_wall,
+                        "dropped_moves": 0, "dropped_length": layer_drop, "split_moves": 0})
+    em.retract(r_len, feed=r_feed)
+    em.postamble()
+    em.extend(_template(mach, "end", _DEFAULT_END[flavor], temps))
+    head = header_lines(version=__version__, nozzle=noz.spec, machine=mach.spec, options=wopts,
+                        mode="generated", summary=summary,
+                        notes=[f"walls at {w_wall:g} mm, infill spacing {w_fill:g} mm, "
+                               f"{options.perimeters} perimeters",
+                               "lost area = length no orientation can print x wall width"])
+    text = "".join(ln + "\n" for ln in head) + em.text()
+    res = GenerateResult(path=None, layers=len(layers), lines=text.count("\n"),
+                         extruded_length=extruded, dropped_length=dropped,
+                         rotations=em.rotations, elapsed=time.perf_counter() - t_start,
+                         summary=tuple(summary))
+    return text, res
+
+
+def _travel(em: Emitter, to: np.ndarray, z: float, orientation: float | None, feed: float,
+            r_len: float, r_feed: float, r_min: float, lift: float) -> None:
+    """Move to ``to`` without extruding: retract, lift, move (turning), lower, unretract."""
+    far = em.x is None or math.hypot(to[0] - em.x, to[1] - em.y) >= r_min
+    if far:
+        em.retract(r_len, feed=r_feed)
+        if lift > 0 and em.z is not None:
+            em.travel(z=z + lift, feed=feed)
+    em.travel(float(to[0]), float(to[1]), z=z if not (far and lift > 0) else None, feed=feed,
+              orientation=orientation)
+    if far:
+        if lift > 0:
+            em.travel(z=z, feed=feed)
+        em.unretract(r_len, feed=r_feed)
+
+
+def generate_file(
+    input_path: str | os.PathLike[str] | LayerStack,
+    output: str | os.PathLike[str],
+    nozzle: str | Nozzle,
+    machine: str | Machine = "ttr",
+    *,
+    options: GenerateOptions = GenerateOptions(),
+    layer_height: float | None = None,
+    first_layer_height: float | None = None,
+    units: str | None = None,
+) -> GenerateResult:
+    """Load layers (any source :func:`printability.sources.load_layers` reads), generate, and
+    write the G-code atomically to ``output``."""
+    if isinstance(input_path, LayerStack):
+        layers = input_path
+    else:
+        from printability.sources import load_layers
+
+        layers = load_layers(input_path, layer_height=layer_height,
+                             first_layer_height=first_layer_height, units=units)
+    text, res = generate_gcode(layers, nozzle, machine, options=options)
+    out = Path(output)
+    from printability.postprocess import _write_atomic
+
+    try:
+        _write_atomic(out, text.encode("utf-8"))
+    except OSError as exc:
+        raise PrintabilityOSError(f"{out}: cannot write the G-code ({exc.strerror or exc})") \
+            from None
+    return GenerateResult(**{**res.__dict__, "path": str(out)})

@@ -1,0 +1,148 @@
+"""``printability generate``: walls and infill inside what the nozzle can print, on real parts."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import Polygon
+
+from gcode import parse_gcode
+from printability.errors import InputError
+from printability.generate import GenerateOptions, generate_gcode
+from printability.geometry import as_region
+from printability.layers import Layer, LayerStack
+from printability.mmc import compute_mmc
+from printability.motion.check import check_deposition, extrusion_chords
+from printability.nozzle import parse_nozzle
+from printability.sources import load_layers
+
+ELLIPSE = "ellipse:major=0.8,minor=0.3"
+GOLDEN = Path(__file__).with_name("golden")
+ROOT = Path(__file__).resolve().parents[2]
+TTR_PROFILE = ROOT / "printability" / "data" / "machines" / "ttr.toml"
+
+
+def _stack(*regions, height=0.2) -> LayerStack:
+    return LayerStack(tuple(Layer(z=height * (i + 1), height=height, region=as_region(r), index=i)
+                            for i, r in enumerate(regions)), source="test")
+
+
+def _l_shape() -> Polygon:
+    # an L (block and base) with a 0.5 mm thin rib standing on the base: the ellipse threads
+    # the rib only moving along its major axis (0.3 mm wide bead)
+    return Polygon([(0, 0), (12, 0), (12, 2), (6.5, 2), (6.5, 8), (6, 8), (6, 2), (4, 2),
+                    (4, 8), (0, 8)])
+
+
+@pytest.mark.parametrize(("name", "nozzle", "machine", "options"), [
+    ("l_shape_ellipse_ttr", ELLIPSE, "ttr", GenerateOptions(center=False)),
+    ("l_shape_round_xy", "circle:d=0.4", "xy", GenerateOptions(center=False, relative_e=False)),
+    ("l_shape_ellipse_profile", ELLIPSE, str(TTR_PROFILE),
+     GenerateOptions(feed_policy="euclidean", unwind=True)),
+])
+def test_golden(name, nozzle, machine, options):
+    text, _ = generate_gcode(_stack(_l_shape(), _l_shape()), nozzle, machine, options=options)
+    text = text.replace(str(TTR_PROFILE), "ttr.toml")
+    path = GOLDEN / f"{name}.gcode"
+    if os.environ.get("PRINTABILITY_UPDATE_GOLDEN"):
+        path.write_text(text)
+    assert path.exists(), f"golden file {path} missing (PRINTABILITY_UPDATE_GOLDEN=1 writes it)"
+    assert text == path.read_text()
+
+
+def _check(stack: LayerStack, nozzle: str, text: str, min_cover: float) -> None:
+    g = parse_gcode(text.encode())
+    assert len(g.layers) == len(stack)
+    chords = extrusion_chords(g)
+    noz = parse_nozzle(nozzle)
+    reports = check_deposition(chords, [layer.region for layer in stack], noz, keep_union=True)
+    assert len(reports) == len(stack)
+    for r in reports:
+        assert r.max_outside <= 1e-3 + 2e-4, f"layer {r.layer}: {r.max_outside} mm outside G"
+        s = compute_mmc(stack[r.layer].region, noz, "ttr").as_built
+        covered = s.intersection(r.deposited).area / s.area
+        assert covered >= min_cover, f"layer {r.layer}: {covered:.3f} of S deposited"
+
+
+def test_generate_calibration_cube(shared_data):
+    layers = load_layers(shared_data / "stl" / "CalibrationCube.stl", layer_height=0.2)
+    stack = LayerStack(tuple(layers.layers[::40]), source=layers.source)
+    text, res = generate_gcode(stack, ELLIPSE, "ttr", options=GenerateOptions(center=False))
+    assert res.rotations > 0 and res.extruded_length > 0
+    _check(stack, ELLIPSE, text, 0.95)
+
+
+@pytest.mark.parametrize("name", [
+    "saw-grip-slotwidth-1-5mm--rotated_outline_mesh0_z14500.txt",
+    "OpenRC-spur-gear--rotated_outline_mesh0_z700.txt",
+])
+def test_generate_real_slices(shared_data, name):
+    stack = load_layers(shared_data / "slices" / name)
+    text, _ = generate_gcode(stack, ELLIPSE, "ttr", options=GenerateOptions(center=False))
+    _check(stack, ELLIPSE, text, 0.90)
+
+
+def test_round_nozzle_writes_no_rotary_word():
+    text, res = generate_gcode(_stack(_l_shape()), "circle:d=0.4", "ttr",
+                               options=GenerateOptions(center=False))
+    assert res.rotations == 0
+    g = parse_gcode(text.encode())
+    assert not (g.words["letter"] == ord("C")).any()
+
+
+def test_the_slot_is_threaded_by_the_ellipse_not_by_a_wide_round_nozzle():
+    """The 0.5 mm rib: the ellipse (0.3 mm across when moving along its major axis) prints
+    in it, a 0.8 mm round nozzle cannot enter it at all."""
+    slot = shapely.box(6.0, 2.3, 6.5, 8.0)
+    for nozzle, expect in ((ELLIPSE, True), ("circle:d=0.8", False)):
+        text, _ = generate_gcode(_stack(_l_shape()), nozzle, "ttr",
+                                 options=GenerateOptions(center=False))
+        ch = extrusion_chords(parse_gcode(text.encode()))
+        mid = shapely.points((ch["x0"] + ch["x1"]) / 2, (ch["y0"] + ch["y1"]) / 2)
+        assert bool(shapely.contains(slot, mid).any()) is expect, nozzle
+
+
+@pytest.mark.parametrize(("flavor", "expected"), [
+    ("marlin", ["M104 S215", "M109 S215", "M190 S60"]),
+    ("reprap", ["G10 P0 S215 R215", "M116"]),
+])
+def test_start_gcode_per_flavor_uses_profile_temperatures(tmp_path, flavor, expected):
+    text = TTR_PROFILE.read_text().replace('flavor = "marlin"', f'flavor = "{flavor}"')
+    prof = tmp_path / "m.toml"
+    prof.write_text(text)
+    out, _ = generate_gcode(_stack(_l_shape()), ELLIPSE, str(prof))
+    for line in expected:
+        assert line in out.splitlines()
+    assert "G1 E-0.8 F2100" in out.splitlines()  # retraction 0.8 mm at 35 mm/s
+
+
+def test_bad_profile_value(tmp_path):
+    prof = tmp_path / "m.toml"
+    prof.write_text(TTR_PROFILE.read_text().replace("perimeter = 30.0", 'perimeter = "fast"'))
+    with pytest.raises(InputError, match=r"\[speeds\] perimeter"):
+        generate_gcode(_stack(_l_shape()), ELLIPSE, str(prof))
+
+
+def test_cli_generate(tmp_path, shared_data):
+    out = tmp_path / "part.gcode"
+    gear = shared_data / "slices" / "OpenRC-spur-gear--rotated_outline_mesh0_z700.txt"
+    r = subprocess.run([sys.executable, "-m", "printability", "generate", str(gear),
+                        "-n", ELLIPSE, "-m", str(TTR_PROFILE), "-o", str(out)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    g = parse_gcode(out.read_bytes())
+    assert g.moves["is_extrusion"].sum() > 100
+    # centred on the profile's 220 x 220 bed
+    ext = g.moves[g.moves["is_extrusion"]]
+    assert np.all((ext["x1"] > 0) & (ext["x1"] < 220) & (ext["y1"] > 0) & (ext["y1"] < 220))
+    r2 = subprocess.run([sys.executable, "-m", "printability", "generate", str(tmp_path / "no.stl"),
+                         "-n", ELLIPSE, "-m", "ttr", "-o", str(tmp_path / "x.gcode")],
+                        capture_output=True, text=True, timeout=600)
+    assert r2.returncode == 1 and r2.stderr.startswith("printability: error:")
+    assert not (tmp_path / "x.gcode").exists()
