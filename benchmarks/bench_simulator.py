@@ -76,7 +76,9 @@ def bench_parse(cmds: list[str]) -> tuple[float, float, int]:
 
 
 def bench_firmware(text: str, profile: str) -> dict[str, float]:
-    fw = Firmware(make_config(profile=profile, nozzle="circle:d=0.4"))
+    # A T-T-R machine without bed limits: the files' printers have beds of every size.
+    fw = Firmware(make_config(profile=profile, machine="ttr:min=-180,max=180",
+                              nozzle="circle:d=0.4"))
     fw.connect()
     # Several files heat through slicer macros the simulator cannot expand (START_PRINT...):
     # allow cold extrusion so every file deposits.
@@ -91,7 +93,8 @@ def bench_firmware(text: str, profile: str) -> dict[str, float]:
     union = time.perf_counter() - t
     return {"lines": fw.stats.lines_in, "run": run, "union": union, "layers": len(rec.layers),
             "motion": fw.stats.motion_time, "clock": fw.now, "unknown": fw.stats.unknown,
-            "area": sum(lr.area for lr in rec.layers)}
+            "area": sum(lr.area for lr in rec.layers),
+            "refused": fw.stats.refused_moves}
 
 
 def bench_printcore(path: Path, n: int = 3000) -> float | None:

@@ -62,6 +62,7 @@ _EOL = re.compile(rb"[\r\n]")
 # after this many keepalives of one command the clock jumps straight to its end.
 _SIM_KEEPALIVE_CAP = 1000
 _N_PREFIX = re.compile(r"N\s*(-?\d+)\s*")
+_STRTOL = re.compile(r"\s*[+-]?\d+")
 
 # Commands the firmware accepts and (for the simulation) need no effect.
 _NOOP = frozenset({
@@ -148,6 +149,7 @@ class Stats:
     unknown: int = 0
     busy_sent: int = 0
     cold_extrusions: int = 0
+    refused_moves: int = 0
     resets: int = 0
     moves: int = 0
     blocks: int = 0
@@ -279,8 +281,8 @@ class Firmware:
         while True:
             self.advance(self.now)
             t = self._sim_event()
-            if not math.isfinite(t) or t > limit or self.halted:
-                return
+            if not math.isfinite(t) or t > limit or t <= self.now or self.halted:
+                return  # idle until the host sends more (t <= now: nothing can move)
             self.now = max(self.now, t)
 
     def advance(self, now: float) -> None:
@@ -436,10 +438,9 @@ class Firmware:
                     return self._line_error(ERR_LINE_NO)
                 if star < 0:
                     return self._line_error(ERR_NO_CHECKSUM)
-                try:
-                    given = int(text[star + 1:].strip() or "x")
-                except ValueError:
-                    given = -1
+                # strtol(): leading digits count, anything after them is ignored, none is 0.
+                m_sum = _STRTOL.match(text, star + 1)
+                given = int(m_sum.group()) if m_sum else 0
                 if given != checksum(text[:star]) or self._storm > 0:
                     self._storm = max(self._storm - 1, 0)
                     return self._line_error(ERR_CHECKSUM)
@@ -583,6 +584,7 @@ class Firmware:
                 else:
                     blocks = m.arc(cmd, clockwise=code == "G2")
             except MotionError as exc:
+                self.stats.refused_moves += 1
                 self._emit(str(exc))
                 return
             self.stats.moves += 1
@@ -766,7 +768,8 @@ class Firmware:
             "bytes_in": s.bytes_in, "bytes_out": s.bytes_out, "bytes_dropped": s.bytes_dropped,
             "lines_in": s.lines_in, "executed": s.executed, "resends": s.resends,
             "errors": dict(s.errors), "unknown_commands": s.unknown, "busy_sent": s.busy_sent,
-            "cold_extrusions": s.cold_extrusions, "resets": s.resets, "moves": s.moves,
+            "cold_extrusions": s.cold_extrusions, "refused_moves": s.refused_moves,
+            "resets": s.resets, "moves": s.moves,
             "planner_blocks": s.blocks,
             "motion_time_s": s.motion_time, "clock_s": self.now,
             "faults": [list(f) for f in s.faults],

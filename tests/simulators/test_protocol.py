@@ -11,6 +11,7 @@ from _sim_helpers import framed, open_sim, xor
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from printability.errors import InputError
 from simulators import Firmware, checksum, make_config
 
 
@@ -309,3 +310,18 @@ def test_feed_policies(tmp_path):
     assert fw.fw.planner_buffer == 5 and fw.fw.acceleration == 2000.0
     out = _say(fw, b"G93\n")
     assert out.startswith('echo:Unknown command: "G93"')
+
+
+def test_machine_profile_firmware_keys_are_checked(tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_text('[machine]\nname = "t"\nkind = "ttr"\n[firmware]\nflavor = "marlin"\n'
+                    'planner_buffr = 8\n')
+    with pytest.raises(InputError, match="unknown \\[firmware\\] key 'planner_buffr'"):
+        make_config(machine=str(path))
+
+
+@pytest.mark.parametrize("profile", ["marlin", "marlin-advanced", "klipper"])
+def test_every_profile_runs_on_the_shipped_ttr_machine(profile):
+    fw = _fw(profile=profile, machine="ttr")
+    out = _say(fw, b"G28\nG1 X10 Y10 C90 F3000\nM114\n")
+    assert "C:90.00" in out

@@ -221,3 +221,24 @@ def test_simulate_help_runs():
     from printability.cli.main import main
 
     assert main(["simulate", "--help"]) == 0
+
+
+def test_simulate_cli_writes_the_record_on_sigusr1(tmp_path):
+    rec = tmp_path / "now.json"
+    proc, port = _start_cli("--tcp", "0", "--clock", "sim", "--record", str(rec),
+                            "--duration", "120")
+    try:
+        ser = serial.serial_for_url(port, timeout=0.5)
+        _readlines_until(ser, lambda s: s == "start")
+        ser.write(framed(1, "M400"))
+        _readlines_until(ser, lambda s: s == "ok")
+        proc.send_signal(signal.SIGUSR1)
+        deadline = time.monotonic() + 20
+        while not rec.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert json.loads(rec.read_text())["log"] == [[1, "M400"]]
+        assert proc.poll() is None  # still serving
+        ser.close()
+    finally:
+        code, err = _stop_cli(proc)
+    assert code == 0, err
