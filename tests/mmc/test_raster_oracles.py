@@ -35,11 +35,16 @@ def _assert_overlap(exact, ras):
     assert rlo <= ras.lost_area <= rhi
 
 
-@pytest.mark.parametrize("name", sorted(CATALOGUE))
-@pytest.mark.parametrize("nozzle,machine", [
-    ("circle:d=0.6", "xy"),
-    ("ellipse:major=0.8,minor=0.3", "ttr:step=15"),
-])
+def _cases():
+    for name in sorted(CATALOGUE):
+        yield pytest.param(name, "circle:d=0.6", "xy", id=f"{name}-circle-xy")
+        # the exact engine takes seconds per real slice on T-T-R: those run with -m slow
+        marks = [pytest.mark.slow] if name.startswith("slice:") else []
+        yield pytest.param(name, "ellipse:major=0.8,minor=0.3", "ttr:step=15",
+                           id=f"{name}-ellipse-ttr", marks=marks)
+
+
+@pytest.mark.parametrize("name,nozzle,machine", list(_cases()))
 def test_bounds_overlap_the_exact_engine_on_the_catalogue(name, nozzle, machine):
     region = CATALOGUE[name].region
     if region.area < 1.0:
