@@ -378,8 +378,9 @@ def test_property_bigger_circle_never_loses_less_on_xy(rs, d, extra):
         return
     # λ(G \\ S) grows with the disk, so hi(big) ≥ lost(big) ≥ lost(small) ≥ lo(small)
     assert big.lost_area_bounds[1] >= small.lost_area_bounds[0]
-    # and the centre-sampled estimate follows, up to the discretisation of the digital disks
-    assert big.lost_area >= small.lost_area - 4 * 0.05**2 * 8
+    # the inner (certain) result loses at least as much: its touch kernels are nested
+    # (P shrinks), though digital disks are not open w.r.t. each other, so S may not nest
+    assert big.motion.count.data.sum() <= small.motion.count.data.sum()
 
 
 def test_erode3():
