@@ -75,7 +75,8 @@ Outer result (lo)
 Estimate
     The centre-sampled opening: B = pixels whose centre is in G, K_c(k) =
     offsets whose centre is in the footprint, S_est = ∪_k (B ⊖ K_c) ⊕ K_c;
-    lost = λ(G) − h²·|S_est|, clipped into [lo, hi]. It converges to the
+    lost = h²·|B \\ S_est| (both sides sampled alike, so the sampling of ∂G
+    cancels), clipped into [lo, hi]. It converges to the
     sampled-angle value as h → 0 (O(h) near ∂G, usually much better).
 
 Floating point: classification uses eps = 1e-6·h + 1e-12·(coordinate size),
@@ -737,7 +738,8 @@ def mmc_raster(region: MultiPolygon, nozzle: Nozzle, machine: Machine, *,
     tol = 1e-9 * target_area
     lo = max(0.0, target_area - outer_area - tol)
     hi = min(target_area, target_area - inner_area + tol)
-    lost_est = target_area - _popcount(est.union) * h2
+    # both areas on the same centre-sampled raster, so the sampling of ∂G cancels out
+    lost_est = (int(np.count_nonzero(cls >= 2)) - _popcount(est.union)) * h2
     lost = min(max(lost_est, lo), hi)
 
     flat_words = (inner.band_i * inner.base.shape[1] + inner.band_w).astype(np.int64)
