@@ -242,3 +242,28 @@ def test_simulate_cli_writes_the_record_on_sigusr1(tmp_path):
     finally:
         code, err = _stop_cli(proc)
     assert code == 0, err
+
+
+def test_simulate_cli_reports_mmc_violations_against_a_target(tmp_path):
+    target = tmp_path / "part.wkt"
+    target.write_text("POLYGON ((50 50, 70 50, 70 70, 50 70, 50 50))\n")
+    rec = tmp_path / "rec.json"
+    proc, port = _start_cli("--tcp", "0", "--clock", "sim", "--record", str(rec), "--target",
+                            str(target), "--duration", "120")
+    try:
+        ser = serial.serial_for_url(port, timeout=0.5)
+        _readlines_until(ser, lambda s: s == "start")
+        cmds = ["M302 P1", "G28", "G1 Z0.2 F600", "G1 X55 Y55 F3000", "G1 X65 Y55 E1",
+                "G1 X75 Y65 E2", "M400"]
+        for i, c in enumerate(cmds, 1):
+            ser.write(framed(i, c))
+            _readlines_until(ser, lambda s: s.startswith("ok"))
+        ser.close()
+    finally:
+        code, err = _stop_cli(proc)
+    assert code == 0, err
+    doc = json.loads(rec.read_text())
+    (v,) = doc["violations"]
+    assert v["first_line"] == 6 and v["first_text"] == "G1 X75 Y65 E2"
+    assert v["bbox"][2] == pytest.approx(75.2, abs=0.01)
+    assert doc["target"] == str(target)
