@@ -263,9 +263,13 @@ def _segment_meets(kind, a, b, x0, y0, x1, y1, vx, vy, closed):  # pragma: no co
             s = min(1.0, max(0.0, -(x0 * dx + y0 * dy) / ll))
         px, py = x0 + s * dx, y0 + s * dy
         d2 = px * px + py * py
-        return d2 <= 1.0 if closed else d2 < 1.0
+        # closed: a hair of margin so that tangency lost to rounding still counts
+        return d2 <= 1.0 + 1e-9 if closed else d2 < 1.0
     if kind == _RECT:
-        if not closed:  # the open box: shrink by a hair
+        if closed:  # a hair of margin so that tangency lost to rounding still counts
+            a *= 1.0 + 1e-9
+            b *= 1.0 + 1e-9
+        else:  # the open box: shrink by a hair
             a *= 1.0 - 1e-12
             b *= 1.0 - 1e-12
         t0, t1 = 0.0, 1.0
@@ -958,8 +962,15 @@ def mmc_sampled(
     feasible = np.zeros(n, dtype=bool)
     optimistic = np.zeros(n, dtype=bool)
     over_part = 0  # samples with the first orifice's centre over G
+    # samples whose nozzle, grown by the slack, reaches G's bounding box: with none, no
+    # configuration at all (sampled or not) can print anything
+    near = 0
+    minx, miny, maxx, maxy = g.bounds
+    margin = nozzle.radius + slack
     for flat in _chunks(space, machine, nozzle, g):
         phi, t = space.pose(space.joint_vectors(flat))
+        near += int(np.count_nonzero((t[:, 0] >= minx - margin) & (t[:, 0] <= maxx + margin)
+                                     & (t[:, 1] >= miny - margin) & (t[:, 1] <= maxy + margin)))
         ok = np.ones(len(flat), dtype=bool)
         for k, (test, o) in enumerate(zip(feasible_tests, orifices, strict=True)):
             res, n_over = _run_test(test, o.center, g, edges, phi, t, ok)
@@ -1005,7 +1016,7 @@ def mmc_sampled(
                                tolerance=tol, axes=[axis], verify=False, grow=slack)
         outer = shapely.union_all(o_polys)
         lo_b = max(0.0, target_area - float(shapely.intersection(outer, g).area))
-    elif has_outer:
+    elif has_outer or near == 0:
         lo_b = target_area
     else:
         lo_b = 0.0
