@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import tempfile
 import threading
@@ -605,6 +606,9 @@ class Host:
         self._suspicious = 0
         self._error_kind: str | None = None
         self._deferred: tuple[int, float] | None = None
+        self._quiet_until: float | None = None
+        self._received = 0  # last line the firmware said it has (Error + Resend agreeing)
+        self._error_last_line: int | None = None
         self._timeout_seq = -(10**9)
         self._cancel_done = False
 
@@ -735,6 +739,11 @@ class Host:
         self._suspicious = 0
         order_error = self._error_kind == "line"
         self._error_kind = None
+        if self._error_last_line == number - 1:
+            # Error and Resend agree (a garbled reply would not): the firmware has every
+            # line before the one it asks for.
+            self._received = max(self._received, number - 1)
+        self._error_last_line = None
         # Everything before the requested line has been accepted.
         while self._outstanding and self._outstanding[0].number < number:
             self._pop_front()
@@ -803,6 +812,8 @@ class Host:
             # "Line Number is not Last Line Number+1": a line out of sequence was refused.
             self._error_kind = ("line" if "line number is not" in low or "expected line" in low
                                 else "checksum")
+            m = re.search(r"last line:?\s*(\d+)", low)
+            self._error_last_line = int(m.group(1)) if m else None
             return  # a Resend follows
         low = text.lower()
         fatal = "halted" in low or "kill" in low or "stopped" in low or text.startswith("!!")
@@ -1043,16 +1054,32 @@ class Host:
         return self._owner[n] + 1 if n > 0 else self._start
 
     def _finished(self) -> bool:
-        """Everything sent and answered: prove it (barrier) or accept ADVANCED_OK's word."""
-        if self._acked_reliable >= self._max_sent or self._barrier_ok:
+        """True once the firmware has provably accepted every line sent.
+
+        Proofs: ``ok N<last>`` (ADVANCED_OK); a ``Resend`` for the line after the
+        last, consistent with its ``Error:… Last Line``; or the reply of the
+        numbered ``M105`` barrier (``ok T:…``), which no other ``ok`` resembles.
+        A firmware whose M105 reply carries no temperatures gets a quiet
+        moment (``confirm_timeout``) in which a late ``Resend`` would reopen
+        the stream; after it, the stream ends.
+        """
+        proven = max(self._acked_reliable, self._received)
+        if proven >= self._max_sent or self._barrier_ok:
             return True
-        if self.firmware.advanced_ok or not self.config.end_barrier:
-            return self._acked >= self._max_sent
-        if not self._barrier_number:
+        if (not self.firmware.advanced_ok and self.config.end_barrier
+                and not self._barrier_number):
             self._inject((_BARRIER,), len(self._program))
             self._barrier_number = len(self._frames) - 1
+            return False
+        now = time.monotonic()
+        if self._outstanding or self._next < len(self._frames):
+            self._quiet_until = None
+        elif self._quiet_until is None:
+            self._quiet_until = now + self.config.confirm_timeout
+        elif now >= self._quiet_until and self._acked >= self._max_sent:
+            return True
         self._pump_once(lambda: False, allow_new=False)
-        return self._barrier_ok
+        return False
 
     def _drain(self, timeout: float) -> None:
         """Let lines already sent be answered (retransmitting as asked), within ``timeout``."""
