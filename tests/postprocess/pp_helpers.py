@@ -1,0 +1,61 @@
+"""Helpers shared by the post-processing tests."""
+
+from __future__ import annotations
+
+import bisect
+import re
+from collections import defaultdict
+
+__all__ = ["lines_not_kept"]
+
+_C_WORD = re.compile(rb" C-?[0-9.]+")
+_INSERTED = re.compile(rb"^(G92 E-?[0-9.]+|G1 C-?[0-9.]+|; printability.*)\r?\n?$")
+
+
+def lines_not_kept(old: bytes, new: bytes, may_change: set[int]) -> tuple[list[int], list[int]]:
+    """Original lines (0-based) missing from the new file, in order, up to rotary words.
+
+    Both files are normalised alike (lines of the kinds the tool inserts, ``G92 E…``,
+    ``G1 C…`` and its comment block, are set aside; rotary words are removed), then the
+    original lines are looked for in order: a line outside ``may_change`` must be found
+    further on; a line in ``may_change`` (the part's extrusions) may be missing, and is
+    only looked for within the next 64 lines so that it never jumps ahead to an identical
+    line elsewhere.
+
+    Returns
+    -------
+    (missing, changed)
+        Lines outside ``may_change`` not found (must be empty), and lines of
+        ``may_change`` not kept.
+    """
+    def norm(data: bytes) -> tuple[list[bytes], list[int]]:
+        lines, where = [], []
+        for i, ln in enumerate(data.splitlines(keepends=True)):
+            if _INSERTED.match(ln):
+                continue
+            lines.append(_C_WORD.sub(b"", ln))
+            where.append(i)
+        return lines, where
+
+    a, ia = norm(old)
+    b, _ = norm(new)
+    positions: dict[bytes, list[int]] = defaultdict(list)
+    for j, ln in enumerate(b):
+        positions[ln].append(j)
+    ptr = 0
+    missing: list[int] = []
+    changed: list[int] = []
+    for ln, i in zip(a, ia, strict=True):
+        pos = positions.get(ln, [])
+        k = bisect.bisect_left(pos, ptr)
+        j = pos[k] if k < len(pos) else None
+        if i in may_change:
+            if j is not None and j < ptr + 64:
+                ptr = j + 1
+            else:
+                changed.append(i)
+        elif j is None:
+            missing.append(i)
+        else:
+            ptr = j + 1
+    return missing, changed
