@@ -4,49 +4,63 @@ Machines whose translations depend on their rotations (a polar printer, a SCARA
 arm) are not separable: there is no erosion per angle to compute. This engine
 samples the joint space Ω on the product grid of the joints' own steps
 (:meth:`Machine.joint_grid`), places the nozzle at every sample with
-:meth:`Machine.pose` and tests **A^u ⊆ G directly** (shapely, vectorised):
+:meth:`Machine.pose` and tests **A^u ⊆ G directly**:
 
-* P = the feasible samples. A sample is feasible when every orifice's *outer*
-  polygon, placed, lies in the interior of G (``contains_properly``): never a
-  configuration that puts material outside G. Two cheap exact tests decide most
-  samples first: an orifice whose inscribed disk meets ∂G (or whose centre is
-  outside G) is out; one whose circumscribed disk misses ∂G with its centre
-  inside is in.
+* P = the feasible samples. For a connected orifice, A^u lies in the interior of
+  G exactly when one of its points is inside G (``shapely.contains_xy``) and no
+  edge of ∂G meets it. A numba kernel tests the edges of ∂G near the placed
+  orifice (bucketed) against the *true* shape in the orifice's frame: an ellipse
+  or circle (the edge mapped to the unit disk comes within distance 1 of its
+  centre), a rectangle (Liang–Barsky clipping) or a polygon (edge crossings, or
+  an edge end inside). Touching ∂G counts as leaving G (P = C \\ B), with a
+  1e-9 relative margin for tangencies blurred by rounding. Never a configuration
+  that puts material outside G; every orifice of a head must pass.
 * S = the union of the footprints swept between consecutive feasible samples
-  along each joint. Along a prismatic joint the nozzle translates, and the sweep
-  of a convex piece between two samples is exactly the convex hull of its two
-  placements; a whole run of feasible samples is swept by one hull. Along a
-  revolute joint the nozzle turns about the joint; groups of consecutive samples
-  spanning a small angle θ are swept by the hull of the group's end placements,
-  which differs from the true arc sweep by at most
-  e = reach·max_λ|λ + (1 − λ)e^{iθ} − e^{i(1−λ)θ}| + θ·D/4 (reach: largest
-  distance from the joint axis to the nozzle, D: diameter of the piece); groups
-  are sized so that e ≤ ``settings.chord_tolerance``. Every hull is itself
-  checked inside G (with the outer polygon grown by the arc's sagitta), and kept
-  only then: S ⊆ G always. Non-convex orifices are swept piece by piece
-  (triangulated). A rotation of the nozzle about its own origin (the T-T-R
-  rotary axis) is not swept: S is the union over the sampled angles.
+  along each joint (on the XY/T-T-R lattice, whose step is far below the nozzle
+  size, along X only). Along a prismatic joint the nozzle translates and the
+  sweep of a convex piece is exactly the convex hull of its end placements: a
+  whole run of feasible samples is one hull. Along a revolute joint the nozzle
+  turns about the joint axis by θ per group of steps; the hull of the group's
+  end placements differs from the true arc sweep: it misses at most the arc's
+  sagitta s = ρ(1 − cos(θ/2)) and sticks out by at most
+  e = ρ·max_λ|λ + (1 − λ)e^{iθ} − e^{i(1−λ)θ}| + θ·D/4 (≈ ρθ²/8 + θD/4; ρ the
+  distance from the axis to the farthest nozzle point, found per group from the
+  two poses; D the orifice's diameter, 0 for a circle). Groups are sized so that
+  e ≤ ``settings.chord_tolerance`` where possible. Every hull is checked inside
+  G with the outer polygons grown by s, and kept only then (a failed translation
+  run is retried without its end samples, then halved; a failed rotation group
+  pairwise); samples left uncovered add their own footprint. So S ⊆ G always.
+  Hulls are drawn with inner polygons of as few vertices as keep them within
+  ``chord_tolerance`` of the curve (the union's cost grows with vertices);
+  non-convex orifices are swept piece by piece (triangulated). The T-T-R rotary
+  axis (a turn about the nozzle's own origin) is not swept: S is the union over
+  the sampled angles.
 * Bounds. Every configuration u of Ω is within half a step of a sample in each
-  joint, so its footprint is within L = Σ_j lever_j·step_j/2 of that sample's
-  (lever: 1 for a prismatic joint, the reach in mm/rad for a revolute one; on
-  XY/T-T-R L = h/√2 + r_max·Δφ/2). The samples whose orifices shrunk by L fit in
-  G (an optimistic set ⊇ those near the true P) give S ⊆ S_outer = ∪ (A^u ⊕ D(L)),
-  so ``lost_area_bounds = (λ(G) − λ(S_outer ∩ G), λ(G) − λ(S) + 2e·perimeter(S))``.
-  When L exceeds the inscribed radius of an orifice the lower bound is 0.
+  joint, so each nozzle point is within L = Σ_j lever_j·step_j/2 of where it is at
+  that sample (lever: 1 for a prismatic joint, the largest distance from the axis
+  to the nozzle, per radian, for a revolute one; on XY/T-T-R L = h/√2 + r_max·Δφ/2).
+  A feasible u therefore has a sample whose orifices shrunk by L fit in G (an
+  ellipse E(a, b) is shrunk to E(ka, kb), k = 1 − L/b, which lies inside its
+  erosion), so S ⊆ S_outer = ∪ over those samples of A^u ⊕ D(L), and
+  ``lost_area_bounds = (λ(G) − λ(S_outer ∩ G), λ(G) − λ(S) + 2e·perimeter(S))``.
+  When L exceeds an orifice's inscribed radius the lower bound is 0 (a note says
+  so), unless no sample brings the nozzle near G at all.
 
 On ``xy`` and ``ttr`` machines the same code runs on the joints X, Y (a lattice
-of spacing ``settings.resolution``) and the nozzle angle (from
-:meth:`Machine.angles`), so its results can be compared with the separable
-engines'.
+of spacing ``settings.resolution``, padded so every feasible position has its
+nearest lattice point in it) and the nozzle angle (from :meth:`Machine.angles`),
+so its results can be compared with the separable engines'.
 
 Components of P are the connected components of the feasible samples in the
-joint grid (face neighbours; full-turn revolute joints wrap).
+joint grid (``scipy.ndimage.label``, face neighbours; full-turn revolute joints
+and T-T-R angles covering a whole symmetry period wrap).
 
-Cost: one pose and two point tests per sample (vectorised, in chunks), a polygon
-containment test for the samples the cheap tests leave undecided, and a union
-of O(#runs) hulls. The number of samples is the product of the joints' value
-counts; it is estimated up front and refused above ``max_samples`` (or the
-memory limit) with a ResourceError.
+Cost: one pose, one point-in-G test and a few edge tests per sample (chunks of
+2¹⁸; values of the first joint whose second joint axis cannot bring the nozzle
+to G's bounding box are skipped), then a union of O(#runs) hulls. The number of
+samples, the product of the joints' value counts, and the memory are estimated
+up front and refused above ``max_samples`` or ``settings.max_memory`` with a
+ResourceError that suggests coarser steps.
 """
 
 from __future__ import annotations
