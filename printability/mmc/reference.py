@@ -14,8 +14,10 @@ configuration u exactly when m(u)⁻¹·Y ∈ A⁰. So, on a separable machine
   orifices: every orifice in C and none in B, see DESIGN.md §2);
 * S = ∪_{u∈P} A^u as a shapely union of placed footprints.
 
-Every pair (sample, configuration) is one explicit point-in-footprint test, done
-in a numba kernel with bucketed samples and early exit. It is slow and literal on
+At a fixed angle the inverse trajectory of Y, {t : m(t, φ)⁻¹·Y ∈ A⁰} = Y − R(φ)A⁰,
+is rasterised on the lattice row by row (a numba kernel: the row's intervals by the
+even-odd rule over the footprint's edges, accumulated in difference arrays), so
+every (sample, lattice position) pair is decided exactly. It is slow and literal on
 purpose: it shares no geometry code with the fast engines and checks them.
 
 Error and how it is made one-sided
@@ -45,8 +47,9 @@ perimeter(S) × (ε + ρ' + h), i.e. O(h): halving h halves it and quadruples th
 lattice. Curved orifices are polygons with ``4·settings.quad_segs`` vertices,
 inner ones for what is claimed printable and outer ones for what must be avoided.
 
-Complexity: O(#angles × #lattice points × samples within the nozzle's reach);
-the work is estimated before anything heavy and refused above ``max_work``.
+Complexity: O(#angles × #samples × lattice rows per footprint × footprint edges)
+plus O(#angles × #lattice points); the work and memory are estimated before
+anything heavy and refused above ``max_work`` / ``settings.max_memory``.
 """
 
 from __future__ import annotations
@@ -487,9 +490,9 @@ def mmc_reference(
 
     Notes
     -----
-    Error: the bounds' width is O(h) (see the module docstring). Cost:
-    O(#angles × #lattice points × samples within reach of the nozzle), in a numba
-    kernel; first use compiles it (a few seconds, cached on disk).
+    Error: the bounds' width is O(h) (see the module docstring). Cost: see the
+    module docstring; the numba kernel compiles on first use (a few seconds,
+    cached on disk).
     """
     t_start = time.perf_counter()
     if not machine.separable:
