@@ -43,46 +43,64 @@ chords whose end points lie *on* the arc: a fillet of turn θ gets
 round(θ/q₀) chords, q₀ = π/(2·quad_segs), so a chord spans at most 1.5·q₀
 and stays ≥ κ·d from the centre, κ = cos(3π/(8·quad_segs)) (0.99932 at the
 default 32); full circles and round caps use exactly q₀ per chord. GEOS also
-takes three shortcuts: (i) before offsetting a ring or line it deletes
-"shallow concavities", vertices turning towards the offset side closer than
-0.01·d to their neighbours' chord; (ii) it snaps the two offset points of a
-vertex when they are closer than 10⁻³·d; (iii) at an inside turn whose offset
-segments do not meet it adds closing segments through the vertex. Each
-could move the offset towards the wrong side, and they do: a plain
-``buffer(-r).buffer(r)`` leaks material out of G past reflex corners. For a
-disk of radius r (the unit disk in the mapped plane of the affine trick):
+takes shortcuts: (i) before offsetting a ring or line it deletes "shallow
+concavities", vertices turning towards the offset side closer than 0.01·d
+to their neighbours' chord, and this cascades (on a finely drawn round cap
+of radius ≈ r it cuts the cap, and the tip of P behind it retreats by up to
+r/sin(half-angle)); (ii) it snaps the two offset points of a vertex when
+they are closer than 10⁻³·d (a turn under 10⁻³ rad); (iii) at an inside turn
+whose offset segments miss each other it adds closing segments towards the
+vertex (this only shrinks the offset region). A plain ``buffer(-r).buffer(r)``
+therefore both loses and *leaks* material (past reflex corners). We never
+offset a polygon; we offset its boundary as open lines, one side at a time,
+and check. For a disk of radius r (the unit disk in the affine trick's
+mapped plane):
 
-* **P_inner ⊆ P (the MMC promise).** P_raw = negative buffer of G by
-  r·(1 + 10⁻⁷), intersected with G, is then *verified*: the distance to ∂G
-  has no local minimum inside G, so P_raw ⊆ G ⊖ D_r iff every boundary edge
-  of P_raw is ≥ r from every segment of ∂G; an STR tree lists the pairs
-  closer than r (exact segment-to-segment distances). Where the nearest
-  point is a vertex v of G (a chord of an arc round a reflex corner) a
-  polygon containing D(v, r) is cut away, where it lies inside a segment s
-  (a shortcut) a polygon containing s ⊕ D_r is; the new edges are checked
-  again. Straight offsets, the bulk of the boundary, stay exact.
-  *This is the set the engine reports as the motion restriction.*
-* **S_inner ⊆ P_inner ⊕ D_r ⊆ S.** P ⊕ D_r = P ∪ (∂P ⊕ D_r). The boundary
-  of P is cut into open lines at every vertex where a shortcut could happen
-  (shallow: closer than 0.0125·d to its neighbours' chord; a turn below
-  2·10⁻³ rad or within 2·10⁻³ of a U-turn; a neighbouring segment shorter
-  than 1.01·d·tan(turn/2)). Inside a piece GEOS's first simplification pass
-  deletes nothing (so it stops), no offset points snap and every inside turn
-  meets: each piece's buffer by d = r·(1 − 10⁻⁵) is exact on straight parts
-  and inscribed on arcs, so the union is a subset of ∂P ⊕ D_r.
-* **P ⊆ P_outer and S ⊆ S_outer.** P_outer = G minus the same split-line
-  band of ∂G (a subset of ∂G ⊕ D_r), a superset of P. S_outer is the
-  complement of the verified erosion (first point) of the complement of
-  P_outer within a frame, intersected with G: (Pᶜ ⊖ D_r)ᶜ = P ⊕ D_r.
+* **Bands without shortcuts.** Each ring is cut into open lines at two
+  vertices at least (GEOS buffers a closed line as a ring) and at every
+  vertex where a shortcut could act on the side being offset: shallow
+  vertices turning towards that side (closer than 0.0125·d to their
+  neighbours' chord) and turns under 2·10⁻³ rad or within 2·10⁻³ of a
+  U-turn. GEOS never deletes a line's vertex 1, so the first pass of its
+  simplifier finds nothing and stops. A one-sided offset of each piece by
+  d = r·(1 − 10⁻⁵), plus a disk at piece ends that may turn towards that
+  side, is then a subset of the true band ∂G ⊕ D_r on that side: exact on
+  straight parts, inscribed on arcs. A piece GEOS fails on is left out (a
+  smaller band). Unions are re-checked with a point inside every part (GEOS's
+  cascaded union was seen to drop a nearly degenerate part silently).
+* **P_inner ⊆ P (the MMC promise).** P_raw = G minus the inner band at
+  r·(1 + 10⁻⁷) is *verified*: the distance to ∂G has no local minimum inside
+  G, so P_raw ⊆ G ⊖ D_r iff each boundary edge of P_raw is ≥ r from each
+  segment of ∂G; an STR tree lists the closer pairs (exact segment
+  distances). A chord (a, b) of an arc round a reflex vertex v is replaced by
+  a → t → b with t where the tangents at a and b meet (edges ≥ r from v; the
+  triangle holds the part of D(v, r) beyond the chord); any other violation
+  cuts a fan (reflex vertex), a disk (other vertex) or a stadium (segment)
+  containing the offending disk part. New edges are checked again; after
+  four rounds a global inflation by 1/(κ − 1.05·10⁻³) covering every
+  shortcut is used instead. *This is the set the engine reports as P.*
+* **S_inner ⊆ P_inner ⊕ D_r ⊆ S.** P ⊕ D_r = P ∪ (∂P ⊕ D_r), and the outer
+  band is a subset of ∂P ⊕ D_r.
+* **P ⊆ P_outer and S ⊆ S_outer.** P_outer = G minus the two-sided band of
+  ∂G (a subset of ∂G ⊕ D_r), a superset of P. S_outer = the complement of
+  the verified erosion of P_outer's complement (within a frame),
+  intersected with G: (Pᶜ ⊖ D_r)ᶜ = P ⊕ D_r.
+* Zero-area holes (slits left by unions of touching pieces) are closed:
+  their points are limits of the region's points, and every set above is
+  closed, so no area or containment changes (an eroded slit would otherwise
+  kill every position within r of it).
 
 Hence λ(G \\ S_outer) ≤ λ(G \\ S) ≤ λ(G \\ S_inner): the reported
 ``lost_area_bounds`` contain the exact lost area of the sampled angles, and
-differ from it only by slivers within r·(1/κ − 1) of arcs (≈ 10⁻⁴ of the
-lost area on the rectangle test). The argument relies on GEOS's documented
-offset algorithm (OffsetSegmentGenerator, BufferInputLineSimplifier: the
-constants above) and on floating point being accurate to 10⁻⁷·r; if the
-verified erosion still finds violations after four repairs it falls back to
-a global inflation by 1/(κ − 1.05·10⁻³), which covers every shortcut.
+differ from it only by slivers within r·(1/κ − 1) of arcs (≈ 10⁻³ of the
+lost area on the rectangle test). The argument relies on GEOS's offset
+algorithm as published (OffsetSegmentGenerator, BufferInputLineSimplifier:
+the constants above) for the bands; P_inner does not rely on it (verified).
+
+Polygons (rectangles, SVG outlines) need no offsets: P and S are unions
+and differences of convex hulls, exact up to rounding; P is then checked
+with exact predicates (no hull of positions where the footprint meets ∂G
+may share interior with P) and any such hull is cut again.
 
 T-T-R between samples. Turning by |Δ| ≤ Δφ/2 (half the largest gap between
 consecutive sampled angles, wrapping over the symmetry period) moves no
@@ -98,11 +116,12 @@ smaller than the sampled one (more angles print more).
 
 Complexity
 ----------
-Per angle and orifice: two negative buffers (O(n log n) for n vertices),
-STR-tree checks, and a union of O(n) small offset pieces for S_inner (the
-cost of the certificate: tens of times a plain ``buffer(-r).buffer(r)`` on a
-coastline, see ``benchmarks/bench_exact.py``). Polygons: O(n·m) convex hulls
-for m convex pieces of the footprint, then a union. Memory O(n·m).
+Per angle and orifice, for n boundary vertices: O(n) one-sided offset
+pieces and their union (the dominant cost), STR-tree checks O(n log n).
+That is the price of the certificate: tens to hundreds of times a plain
+``buffer(-r).buffer(r)`` (see ``benchmarks/bench_exact.py``). Polygons:
+O(n·m) convex hulls for m convex pieces of the footprint, then a union.
+Memory O(n·m).
 """
 
 from __future__ import annotations
@@ -171,11 +190,28 @@ def _disk_cover(quad_segs: int) -> float:
 
 
 def _as_multi(geom: BaseGeometry) -> MultiPolygon:
+    """The polygons of ``geom`` as a MultiPolygon, without zero-area holes.
+
+    Unions of touching pieces can leave holes of no area (slits); their points
+    are limits of the region's points, so closing them changes no area and no
+    containment proved here (every such set is closed), while an eroded slit
+    would kill every position within r of it.
+    """
     polys = polygons_of(geom)
-    return MultiPolygon(polys) if polys else _EMPTY
+    out = []
+    for p in polys:
+        if p.interiors:
+            tiny = 1e-12 * max(p.area, 1e-300)
+            holes = [h for h in p.interiors if Polygon(h).area > tiny]
+            if len(holes) < len(p.interiors):
+                p = Polygon(p.exterior, holes)
+        out.append(p)
+    return MultiPolygon(out) if out else _EMPTY
 
 
-def _split_lines(geom: BaseGeometry, d: float) -> np.ndarray:
+def _split_lines(
+    geom: BaseGeometry, d: float, *, side: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """Boundary of ``geom`` as open lines that GEOS offsets without any shortcut.
 
     GEOS's line offset takes three shortcuts at a vertex: it deletes "shallow
@@ -186,11 +222,31 @@ def _split_lines(geom: BaseGeometry, d: float) -> np.ndarray:
     lines at its first vertex and at every vertex where one of these could
     happen (with margins), so inside a piece none does: each piece's buffer
     is exact on straight parts, with fillets and round caps drawn by chords
-    whose end points lie on the arcs. Returns an array of LineStrings.
+    whose end points lie on the arcs.
+
+    With ``side`` = −1 (+1) the rings are oriented with the interior on the
+    left and only the right, outer (left, inner) side will be offset: GEOS
+    then only simplifies vertices concave on that side − the reflex (convex)
+    vertices of ``geom`` − so only those need a cut when shallow, and there
+    the two one-sided offsets already cover the wedge on that side (no cap).
+
+    Returns
+    -------
+    lines
+        The pieces (LineStrings).
+    caps
+        Points (k, 2) where a one-sided piece ends at a vertex that may be
+        convex (ring starts and shortcut-prone vertices): the caller adds a
+        disk there.
     """
-    rings = shapely.get_rings(np.asarray(polygons_of(geom), dtype=object))
+    # points closer than 10⁻⁹·d merged (covered by the 10⁻⁵ margin of the bands):
+    # GEOS fails on the zero-length pieces they would make
+    polys = polygons_of(shapely.remove_repeated_points(geom, 1e-9 * d))
+    if side:
+        polys = [shapely.geometry.polygon.orient(q, 1.0) for q in polys]
+    rings = shapely.get_rings(np.asarray(polys, dtype=object))
     if len(rings) == 0:
-        return np.empty(0, dtype=object)
+        return np.empty(0, dtype=object), np.empty((0, 2))
     coords, ring_idx = shapely.get_coordinates(rings, return_index=True)
     # drop the closing vertex of each ring; work per ring with cyclic neighbours
     counts = np.bincount(ring_idx, minlength=len(rings))
@@ -213,11 +269,19 @@ def _split_lines(geom: BaseGeometry, d: float) -> np.ndarray:
     shallow = np.hypot(*(a + s[:, None] * ab - p).T) < _SPLIT * d
     u, w = p - a, b - p
     turn = np.arctan2(np.abs(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]), np.einsum("ij,ij->i", u, w))
-    shortest = np.minimum(np.hypot(*u.T), np.hypot(*w.T))
-    with np.errstate(over="ignore"):
-        reach = d * np.tan(np.minimum(turn, math.pi - 1e-9) / 2.0)
-    risky = (turn < _SNAP_TURN) | (turn > math.pi - _SNAP_TURN) | (shortest <= 1.01 * reach)
-    cut = shallow | risky | (local == 0)
+    if side:
+        # only one side is offset: the simplifier can only delete vertices
+        # concave on that side (turning right for the right side, left for the left)
+        shallow &= side * (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) > 0
+    # a snap (offset points closer than 10⁻³·d) needs a turn under 10⁻³ rad, or a
+    # near U-turn; where an inside turn's offsets miss each other GEOS adds
+    # closing segments towards the vertex, which only shrink the band: safe
+    risky = (turn < _SNAP_TURN) | (turn > math.pi - _SNAP_TURN)
+    # two cuts per ring at least: GEOS buffers a closed line as a ring (another
+    # code path, and a one-sided one fills the inside)
+    ends = (local == 0) | (local == n[ridx] // 2)
+    cut = shallow | risky | ends
+    caps = pts[risky | ends]
     # pieces run from one cut vertex to the next (the ring's closing vertex ends the last)
     cut_pos = np.flatnonzero(cut)
     cut_ring = ridx[cut_pos]
@@ -252,7 +316,7 @@ def _split_lines(geom: BaseGeometry, d: float) -> np.ndarray:
     wrapped = offs >= first[owner] + n[owner]
     offs = np.where(wrapped, first[owner], offs)
     piece_id = np.repeat(np.arange(len(cut_pos)), lengths)
-    return shapely.linestrings(pts[offs], indices=piece_id)
+    return shapely.linestrings(pts[offs], indices=piece_id), caps
 
 
 def _inner_band(geom: BaseGeometry, r: float, quad_segs: int) -> BaseGeometry:
@@ -263,10 +327,51 @@ def _inner_band(geom: BaseGeometry, r: float, quad_segs: int) -> BaseGeometry:
     turns and line ends.
     """
     d = r * (1.0 - _REDUNDANT)
-    lines = _split_lines(geom, d)
+    lines, _ = _split_lines(geom, d)
     if len(lines) == 0:
         return _EMPTY
-    return _union_in_order(shapely.buffer(lines, d, quad_segs=quad_segs))
+    return _union_in_order(_buffer_pieces(lines, d, quad_segs))
+
+
+def _side_band(geom: BaseGeometry, r: float, quad_segs: int, side: int) -> BaseGeometry:
+    r"""A subset of ∂geom ⊕ D_r on one side of the boundary: −1 outside, +1 inside.
+
+    geom ⊕ D_r = geom ∪ (∂geom ⊕ D_r) needs only the outer side, and
+    geom ⊖ D_r = geom \ (∂geom ⊕ D_r) only the inner one. One-sided offsets
+    of the boundary pieces (split as in :func:`_split_lines` with ``side``),
+    plus disks at the pieces' ends that may be turns towards that side:
+    four-vertex quadrilaterals instead of stadiums, a much cheaper union.
+    Every part lies within r·(1 − 10⁻⁵) of ∂geom.
+    """
+    d = r * (1.0 - _REDUNDANT)
+    lines, caps = _split_lines(geom, d, side=side)
+    if len(lines) == 0:
+        return _EMPTY
+    # GEOS: a positive distance offsets the left side, a negative one the right
+    parts = _buffer_pieces(lines, side * d, quad_segs, single_sided=True)
+    if len(caps):
+        disks = shapely.buffer(shapely.points(caps), d, quad_segs=quad_segs)
+        parts = np.concatenate([parts, disks])
+    return _union_in_order(parts)
+
+
+def _buffer_pieces(lines: np.ndarray, d: float, quad_segs: int, **kw) -> np.ndarray:
+    """GEOS buffers of many lines; a piece GEOS cannot buffer is left out.
+
+    Leaving a piece out only shrinks a band, and every band here is used as a
+    subset (the erosions built from one are verified afterwards), so this is
+    safe; a note of it is not needed for correctness.
+    """
+    try:
+        return shapely.buffer(lines, d, quad_segs=quad_segs, **kw)
+    except shapely.errors.GEOSException:
+        out = []
+        for line in lines:
+            try:
+                out.append(shapely.buffer(line, d, quad_segs=quad_segs, **kw))
+            except shapely.errors.GEOSException:
+                continue
+        return np.asarray(out, dtype=object)
 
 
 def _union_in_order(parts: np.ndarray, chunk: int = 256) -> BaseGeometry:
@@ -274,47 +379,79 @@ def _union_in_order(parts: np.ndarray, chunk: int = 256) -> BaseGeometry:
 
     About twice as fast as one cascaded union on coastlines.
     """
+    parts = np.asarray(parts, dtype=object)
     if len(parts) <= chunk:
-        return shapely.union_all(parts)
-    return shapely.union_all([shapely.union_all(parts[i:i + chunk])
-                              for i in range(0, len(parts), chunk)])
+        out = shapely.union_all(parts)
+    else:
+        out = shapely.union_all([shapely.union_all(parts[i:i + chunk])
+                                 for i in range(0, len(parts), chunk)])
+    return _repair_union(out, parts)
+
+
+def _repair_union(union: BaseGeometry, parts: np.ndarray) -> BaseGeometry:
+    """Add back parts a cascaded union dropped.
+
+    GEOS's cascaded union can silently lose a piece when many nearly
+    coincident convex pieces meet (seen with hulls of a very short segment:
+    2 mm² lost on a 25 mm² layer). A point inside every part is tested
+    against the result (exact predicates); each part whose point is not
+    covered is merged again one at a time.
+    """
+    parts = parts[~shapely.is_empty(parts)]
+    if len(parts) == 0:
+        return union
+    probes = shapely.point_on_surface(parts)
+    shapely.prepare(union)
+    missing = parts[~shapely.covers(union, probes)]
+    for piece in missing:
+        union = shapely.union(union, piece)
+    return union
 
 
 def _certified_erosion(g: BaseGeometry, r: float, quad_segs: int) -> MultiPolygon:
     """A subset of G ⊖ D_r, checked point by point against ∂G.
 
     A negative buffer by r·(1 + 10⁻⁷) is exact on straight parts but, near
-    reflex corners (chords inside the arcs) or where GEOS snapped, may come
-    closer than r to ∂G. Since the distance to ∂G has no local minimum inside
-    G, the whole region is ≥ r from ∂G iff its boundary edges are; an STR
-    tree finds every boundary edge closer than r to a segment of ∂G. Where the
-    nearest point is a vertex v of G, the polygon buffer of v of inradius r is
-    cut away; where it is inside a segment s, the stadium around s is. The
-    check is repeated on the result (new edges are ≥ r from what was cut);
-    should it fail :data:`_MAX_FIXES` times, the global inflation r/κ − which
-    covers every shortcut at once − is used.
+    reflex corners (chords inside the arcs) or where GEOS took a shortcut,
+    may come closer than r to ∂G. Since the distance to ∂G has no local
+    minimum inside G, the whole region is ≥ r from ∂G iff its boundary edges
+    are; an STR tree finds every boundary edge closer than r to a segment of
+    ∂G. Where the nearest point is a reflex vertex v of G, a fan polygon
+    containing the sector of D(v, r) between the normals of v's two segments
+    (where the arc's chords lie) is cut away; at any other vertex the whole
+    disk, inside a segment s the stadium around s. The check is repeated on
+    the edges the cuts created; should it still fail after
+    :data:`_MAX_FIXES` rounds, the global inflation by 1/(κ − 1.05·10⁻³) −
+    which covers every shortcut at once − is used.
     """
-    polys = polygons_of(g)
+    polys = [shapely.geometry.polygon.orient(q, 1.0) for q in polygons_of(g)]
     if not polys:
         return _EMPTY
-    g = MultiPolygon(polys)
-    raw = _as_multi(shapely.intersection(shapely.buffer(g, -r * (1 + _FLOAT),
-                                                        quad_segs=quad_segs), g))
-    segs = _boundary_segments(g)
+    g = MultiPolygon(polys)  # exteriors CCW, holes CW: G's interior on the left
+    # not a negative polygon buffer: GEOS would first simplify G's rings, and on
+    # a finely drawn round cap of radius ≈ r that cascades into cutting the cap
+    # (a tip of P retreating by up to r/sin(half-angle))
+    raw = _as_multi(shapely.difference(g, _side_band(g, r * (1 + _FLOAT) / (1 - _REDUNDANT),
+                                                      quad_segs, +1)))
+    segs, nxt = _ring_segments(g)
+    prv = np.empty_like(nxt)
+    prv[nxt] = np.arange(len(nxt))
     seg_geoms = shapely.linestrings(segs)
     tree = shapely.STRtree(seg_geoms)
     cover = r * _disk_cover(quad_segs)
-    zone: shapely.STRtree | None = None  # after a repair only edges near the cuts are new
+    checked: set[bytes] = set()  # edges already verified (exact coordinates)
     for _ in range(_MAX_FIXES):
         edges = _boundary_segments(raw)
         if len(edges) == 0:
             return raw
+        keys = [e.tobytes() for e in edges]
+        fresh = np.fromiter((k not in checked for k in keys), bool, len(keys))
+        checked.update(keys)
+        fresh_idx = np.flatnonzero(fresh)  # position of each checked edge in raw's rings
+        edges = edges[fresh]
+        if len(edges) == 0:
+            return raw
         e_geoms = shapely.linestrings(edges)
-        if zone is not None:
-            touched = np.unique(zone.query(e_geoms, predicate="dwithin", distance=1e-6 * r)[0])
-            e_geoms = e_geoms[touched]
-            if len(e_geoms) == 0:
-                return raw
         ie, js = tree.query(e_geoms, predicate="dwithin", distance=r)
         if len(ie) == 0:
             return raw
@@ -327,16 +464,124 @@ def _certified_erosion(g: BaseGeometry, r: float, quad_segs: int) -> MultiPolygo
         tol = 1e-9 * (1.0 + np.abs(ends).max())
         at0 = np.hypot(*(foot - ends[:, 0]).T) <= tol
         at1 = np.hypot(*(foot - ends[:, 1]).T) <= tol
-        vertices = np.unique(np.concatenate([ends[at0, 0], ends[at1, 1]]), axis=0)
-        inner = np.unique(js[~(at0 | at1)])
-        cutters = list(shapely.buffer(shapely.points(vertices), cover, quad_segs=quad_segs))
+        at_vertex = at0 | at1
+        v = np.where(at0[:, None], ends[:, 0], ends[:, 1])
+        # the usual case: a fillet chord (a, b) of the arc of radius r' round v.
+        # Cut the triangle (a, t, b), t where the tangents at a and b meet: its
+        # new edges are tangent to that circle, so ≥ r' > r from v, and it holds
+        # the part of D(v, r) beyond the chord. No notch in the straight offsets.
+        a, b = edges[ie, 0], edges[ie, 1]
+        rr = r * (1 + _FLOAT)
+        on_arc = (at_vertex & (np.abs(np.hypot(*(a - v).T) / rr - 1) < 1e-6)
+                  & (np.abs(np.hypot(*(b - v).T) / rr - 1) < 1e-6))
+        mid = (a + b) / 2 - v
+        m2 = np.einsum("ij,ij->i", mid, mid)
+        on_arc &= m2 > (0.5 * rr) ** 2  # chords under 120°: the tangents meet nearby
+        tip = v + mid * (rr * rr / np.where(on_arc, m2, 1.0))[:, None]
+        # cut the triangles by inserting their tips into the rings (a union of
+        # thousands of adjacent triangles costs seconds; this is linear)
+        notched = _insert_tips(raw, fresh_idx[ie[on_arc]], tip[on_arc])
+        cutters: list[BaseGeometry] = []
+        if notched is None:
+            tri = np.stack([a, tip, b, a], axis=1)[on_arc]
+            cutters = list(shapely.polygons(tri)) if len(tri) else []
+        # anything else: a fan at a reflex vertex, a disk elsewhere, a stadium
+        # round a segment (a vertex is named by its incoming segment)
+        rest = at_vertex & ~on_arc
+        corners = np.unique(np.concatenate([prv[js[rest & at0 & ~at1]], js[rest & at1]]))
+        if len(corners):
+            u = segs[corners, 1] - segs[corners, 0]
+            w = segs[nxt[corners], 1] - segs[nxt[corners], 0]
+            fan = (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) < 0
+            cutters += [_corner_cutter(segs[i], segs[nxt[i]], r, quad_segs, cover)
+                        for i in corners[fan]]
+            cutters += list(shapely.buffer(shapely.points(segs[corners[~fan], 1]), cover,
+                                           quad_segs=quad_segs))
+        inner = np.unique(js[~at_vertex])
         if len(inner):
             cutters += list(shapely.buffer(seg_geoms[inner], cover, quad_segs=quad_segs))
-        raw = _as_multi(shapely.difference(raw, shapely.union_all(cutters)))
-        zone = shapely.STRtree(cutters)
+        if notched is not None:
+            raw = notched
+        if cutters:
+            raw = shapely.difference(raw, _union_in_order(np.asarray(cutters)))
+        # drop the collinear vertices the tangent triangles leave at chord ends (a
+        # 10⁻⁹·r move, re-verified next round): they would split the offset pieces
+        raw = _as_multi(shapely.simplify(raw, 1e-9 * r))
+        # edges that survived the cut keep their coordinates and stay verified; the
+        # ones just checked and found too close are gone with the cut
     # global fallback: every GEOS shortcut moves the offset by < 1.05·10⁻³·d
     fallback = r * (1 + _FLOAT) / (chord_factor(quad_segs) - 1.05e-3)
     return _as_multi(shapely.intersection(shapely.buffer(g, -fallback, quad_segs=quad_segs), g))
+
+
+def _insert_tips(raw: MultiPolygon, seg_idx: np.ndarray, tips: np.ndarray) -> MultiPolygon | None:
+    """``raw`` with ``tips[k]`` inserted after the start of boundary segment ``seg_idx[k]``.
+
+    Segment numbers are those of :func:`_boundary_segments` (rings in order).
+    Each insertion cuts the triangle (a, tip, b) from the region. Returns None
+    when the result is not a valid polygon (a part thinner than a notch), so
+    the caller can cut the triangles by an overlay instead.
+    """
+    if len(seg_idx) == 0:
+        return raw
+    seg_idx, first = np.unique(seg_idx, return_index=True)
+    tips = tips[first]
+    parts = np.asarray(polygons_of(raw), dtype=object)
+    rings = shapely.get_rings(parts)
+    coords, ring_idx = shapely.get_coordinates(rings, return_index=True)
+    start = np.flatnonzero(ring_idx[1:] == ring_idx[:-1])  # coordinate index of each segment
+    at = start[seg_idx] + 1
+    coords = np.insert(coords, at, tips, axis=0)
+    ring_idx = np.insert(ring_idx, at, ring_idx[at - 1])
+    new_rings = shapely.linearrings(coords, indices=ring_idx)
+    per_poly = shapely.get_num_interior_rings(parts) + 1
+    polys = shapely.polygons(new_rings, indices=np.repeat(np.arange(len(parts)), per_poly))
+    out = MultiPolygon(list(polys))
+    return out if out.is_valid else None
+
+
+def _ring_segments(g: MultiPolygon) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary segments (m, 2, 2) in ring order and, for each, the next one in its ring."""
+    rings = shapely.get_rings(np.asarray(polygons_of(g), dtype=object))
+    coords, idx = shapely.get_coordinates(rings, return_index=True)
+    same = idx[1:] == idx[:-1]
+    segs = np.stack([coords[:-1][same], coords[1:][same]], axis=1)
+    ring = idx[:-1][same]
+    nxt = np.arange(1, len(segs) + 1)
+    last = np.r_[ring[1:] != ring[:-1], True]
+    first = np.r_[True, ring[1:] != ring[:-1]]
+    nxt[last] = np.flatnonzero(first)
+    return segs, nxt
+
+
+def _corner_cutter(
+    s_in: np.ndarray, s_out: np.ndarray, r: float, quad_segs: int, cover: float
+) -> Polygon:
+    """A polygon containing D(v, r) wherever P's arc round the vertex v can be.
+
+    v joins segment ``s_in`` to ``s_out``. At a reflex vertex (G's interior on
+    the left, the boundary turns right by α) the offset arc spans the inward
+    normals from n(s_in) clockwise to n(s_out): the cutter is the fan from v
+    through points at radius r/cos(step/2) over that range widened by a
+    quarter quantum each side (its chords stay ≥ r from v). Elsewhere: the
+    whole disk cover.
+    """
+    v = s_in[1]
+    u, w = s_in[1] - s_in[0], s_out[1] - s_out[0]
+    lu, lw = math.hypot(*u), math.hypot(*w)
+    cross = u[0] * w[1] - u[1] * w[0]
+    if lu == 0 or lw == 0 or cross >= 0:
+        return shapely.buffer(Point(*v), cover, quad_segs=quad_segs)
+    q0 = math.pi / (2 * quad_segs)
+    turn = math.atan2(-cross, float(u @ w))
+    a0 = math.atan2(u[0], -u[1]) + q0 / 4  # left normal of u, widened
+    span = turn + q0 / 2
+    k = max(1, math.ceil(span / q0))
+    step = span / k
+    rad = r * (1 + _FLOAT) / math.cos(step / 2)
+    ang = a0 - step * np.arange(k + 1)
+    fan = np.vstack([v, v + rad * np.column_stack([np.cos(ang), np.sin(ang)])])
+    return Polygon(fan)
 
 
 def erode_disk(g: BaseGeometry, r: float, *, quad_segs: int, outer: bool = False) -> MultiPolygon:
@@ -386,7 +631,7 @@ def dilate_disk(p: BaseGeometry, r: float, *, quad_segs: int, outer: bool = Fals
         grown = 1.01 * r
         return _as_multi(shapely.difference(
             shapely.box(minx - grown, miny - grown, maxx + grown, maxy + grown), eroded))
-    return _as_multi(shapely.union(p, _inner_band(p, r, quad_segs)))
+    return _as_multi(shapely.union(p, _side_band(p, r, quad_segs, -1)))
 
 
 # --------------------------------------------------------------- polygon primitives
@@ -412,9 +657,15 @@ def _boundary_segments(geom: BaseGeometry) -> np.ndarray:
 
 def _boundary_minkowski(geom: BaseGeometry, pieces: Sequence[Polygon], sign: float) -> BaseGeometry:
     """∂geom ⊕ (sign·K) for K = ∪ pieces (convex), as a union of convex hulls."""
+    hulls = _boundary_hulls(geom, pieces, sign)
+    return _union_in_order(hulls) if len(hulls) else _EMPTY
+
+
+def _boundary_hulls(geom: BaseGeometry, pieces: Sequence[Polygon], sign: float) -> np.ndarray:
+    """The convex hulls e ⊕ sign·K_i, one per boundary segment e and convex piece K_i."""
     segs = _boundary_segments(geom)
     if len(segs) == 0 or not pieces:
-        return _EMPTY
+        return np.empty(0, dtype=object)
     hulls = []
     for piece in pieces:
         v = sign * np.asarray(piece.exterior.coords)[:-1]
@@ -422,7 +673,7 @@ def _boundary_minkowski(geom: BaseGeometry, pieces: Sequence[Polygon], sign: flo
         mp = shapely.multipoints(pts.reshape(-1, 2), indices=np.repeat(np.arange(len(segs)),
                                                                        pts.shape[1]))
         hulls.append(shapely.convex_hull(mp))
-    return shapely.union_all(np.concatenate(hulls))
+    return np.concatenate(hulls)
 
 
 def minkowski_erode(g: BaseGeometry, k: BaseGeometry) -> MultiPolygon:
@@ -436,9 +687,29 @@ def minkowski_erode(g: BaseGeometry, k: BaseGeometry) -> MultiPolygon:
     if k is None or g.is_empty:
         return _EMPTY
     k0 = k.representative_point()
-    band = _boundary_minkowski(g, _convex_pieces(k), -1.0)
+    hulls = _boundary_hulls(g, _convex_pieces(k), -1.0)
     moved = shapely.affinity.translate(g, -k0.x, -k0.y)
-    return _as_multi(shapely.difference(moved, band))
+    p = _as_multi(shapely.difference(moved, _union_in_order(hulls)))
+    # MMC check with exact predicates: no hull (a set of positions where the
+    # footprint meets ∂G) may share interior points with P; cut any that does
+    tree = shapely.STRtree(hulls)
+    for _ in range(3):
+        parts = np.asarray(polygons_of(p), dtype=object)
+        if len(parts) == 0:
+            break
+        ip, ih = tree.query(parts, predicate="intersects")
+        inside = shapely.relate_pattern(parts[ip], hulls[ih], "T********")
+        ip, ih = ip[inside], ih[inside]
+        # ignore rounding slivers along the shared boundary
+        common = shapely.area(shapely.intersection(parts[ip], hulls[ih]))
+        bad = np.unique(ih[common > 1e-9 * shapely.area(hulls[ih])])
+        if len(bad) == 0:
+            break
+        cut = hulls[bad[0]]
+        for h in hulls[bad[1:]]:
+            cut = shapely.union(cut, h)
+        p = _as_multi(shapely.difference(p, cut))
+    return p
 
 
 def minkowski_dilate(p: BaseGeometry, pieces: Sequence[Polygon]) -> MultiPolygon:
