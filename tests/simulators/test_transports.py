@@ -267,3 +267,20 @@ def test_simulate_cli_reports_mmc_violations_against_a_target(tmp_path):
     assert v["first_line"] == 6 and v["first_text"] == "G1 X75 Y65 E2"
     assert v["bbox"][2] == pytest.approx(75.2, abs=0.01)
     assert doc["target"] == str(target)
+
+
+def test_real_clock_printsim_with_baud_pacing_and_autoreport():
+    """Wall-clock mode in-process: paced wire, moves executed, M155 reports while idle."""
+    with serial.serial_for_url("printsim://?clock=real&baud=115200&profile=marlin-advanced"
+                               "&fw.homing_time=0.5",
+                               timeout=0.5) as ser:
+        _readlines_until(ser, lambda s: s == "start")
+        cmds = ["M302 P1", "G28", "G1 X5 Y5 Z0.2 F6000", "G1 X10 E0.5", "M400", "M155 S1"]
+        for i, c in enumerate(cmds, 1):
+            ser.write(framed(i, c))
+            _readlines_until(ser, lambda s, i=i: s.startswith(f"ok N{i}"), limit=30)
+        report = _readlines_until(ser, lambda s: s.startswith(" T:"), limit=10)[-1]
+        assert "/0.00" in report
+        fw = ser.simulator.firmware
+        assert [t for n, t in fw.executed if n] == cmds
+        assert fw.now >= fw.config.firmware.homing_time  # the clock is the wall clock
