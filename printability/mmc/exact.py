@@ -81,8 +81,8 @@ mapped plane):
   shortcut is used instead. *This is the set the engine reports as P.*
 * **S_inner ⊆ P_inner ⊕ D_r ⊆ S.** P ⊕ D_r = P ∪ (∂P ⊕ D_r), and the outer
   band is a subset of ∂P ⊕ D_r.
-* **P ⊆ P_outer and S ⊆ S_outer.** P_outer = G minus the two-sided band of
-  ∂G (a subset of ∂G ⊕ D_r), a superset of P. S_outer = the complement of
+* **P ⊆ P_outer and S ⊆ S_outer.** P_outer = G minus the inner band of ∂G
+  (a subset of ∂G ⊕ D_r), a superset of P. S_outer = the complement of
   the verified erosion of P_outer's complement (within a frame),
   intersected with G: (Pᶜ ⊖ D_r)ᶜ = P ⊕ D_r.
 * Zero-area holes (slits left by unions of touching pieces) are closed:
@@ -214,15 +214,17 @@ def _split_lines(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Boundary of ``geom`` as open lines that GEOS offsets without any shortcut.
 
-    GEOS's line offset takes three shortcuts at a vertex: it deletes "shallow
-    concavities" (vertices closer than 0.01·d to their neighbours' chord), it
-    snaps the offset points of a vertex turning by less than ~10⁻³ rad, and at
-    an inside turn whose offset segments do not meet (a segment shorter than
-    d·tan(α/2)) it adds closing segments or snaps. Every ring is cut into open
-    lines at its first vertex and at every vertex where one of these could
-    happen (with margins), so inside a piece none does: each piece's buffer
-    is exact on straight parts, with fillets and round caps drawn by chords
-    whose end points lie on the arcs.
+    GEOS deletes "shallow concavities" (vertices closer than 0.01·d to their
+    neighbours' chord, turning towards the offset side) and snaps the offset
+    points of a vertex turning by less than ~10⁻³ rad. Every ring is cut into
+    open lines at two vertices at least (a closed line is buffered as a ring)
+    and at every vertex where either could happen (with margins: 0.0125·d,
+    2·10⁻³ rad, or within 2·10⁻³ of a U-turn), so inside a piece neither does
+    (GEOS never deletes a line's vertex 1, which lets a two-vertex piece
+    absorb the next one). Each piece's buffer is then exact on straight
+    parts, with fillets and round caps drawn by chords whose end points lie
+    on the arcs; where an inside turn's offsets miss each other GEOS adds
+    closing segments towards the vertex, which only shrink the buffer.
 
     With ``side`` = −1 (+1) the rings are oriented with the interior on the
     left and only the right, outer (left, inner) side will be offset: GEOS
@@ -317,20 +319,6 @@ def _split_lines(
     offs = np.where(wrapped, first[owner], offs)
     piece_id = np.repeat(np.arange(len(cut_pos)), lengths)
     return shapely.linestrings(pts[offs], indices=piece_id), caps
-
-
-def _inner_band(geom: BaseGeometry, r: float, quad_segs: int) -> BaseGeometry:
-    """A subset of ∂geom ⊕ D_r: the union of GEOS buffers of the split boundary lines.
-
-    Straight parts are exact, arcs are inscribed chords, so the band contains
-    ∂geom ⊕ D_{κ·r} (:func:`chord_factor`) and misses only slivers at convex
-    turns and line ends.
-    """
-    d = r * (1.0 - _REDUNDANT)
-    lines, _ = _split_lines(geom, d)
-    if len(lines) == 0:
-        return _EMPTY
-    return _union_in_order(_buffer_pieces(lines, d, quad_segs))
 
 
 def _side_band(geom: BaseGeometry, r: float, quad_segs: int, side: int) -> BaseGeometry:
@@ -597,26 +585,28 @@ def erode_disk(g: BaseGeometry, r: float, *, quad_segs: int, outer: bool = False
         Chords per quarter circle used by GEOS.
     outer
         False: a subset of the exact erosion (:func:`_certified_erosion`).
-        True: a superset, G minus a subset of ∂G ⊕ D_r (:func:`_inner_band`).
+        True: a superset, G minus a subset of ∂G ⊕ D_r (:func:`_side_band`,
+        inner side).
 
     Notes
     -----
     Both are exact along straight offsets (up to 10⁻⁵·r); they differ from
     the exact erosion only within r·(1/κ − 1) of the arcs around reflex
-    corners (κ from :func:`chord_factor`). Cost O(n log n) for n vertices
-    (inner); a union of O(n) offset pieces (outer).
+    corners (κ from :func:`chord_factor`). Cost: a union of O(n) one-sided
+    offset pieces for n vertices, plus O(n log n) checks (inner).
     """
     if r <= 0:
         return _as_multi(g)
     if not outer:
         return _certified_erosion(g, r, quad_segs)
-    return _as_multi(shapely.difference(g, _inner_band(g, r, quad_segs)))
+    return _as_multi(shapely.difference(g, _side_band(g, r, quad_segs, +1)))
 
 
 def dilate_disk(p: BaseGeometry, r: float, *, quad_segs: int, outer: bool = False) -> MultiPolygon:
     """P ⊕ D_r, as an inner (default) or outer polygonal approximation.
 
-    Inner: P ∪ :func:`_inner_band` (∂P, r), a subset of P ⊕ D_r = P ∪ (∂P ⊕ D_r).
+    Inner: P ∪ :func:`_side_band` (∂P, r, outer side), a subset of
+    P ⊕ D_r = P ∪ (∂P ⊕ D_r).
     Outer: the complement of a certified erosion of P's complement (within a
     frame): (Pᶜ ⊖ D_r)ᶜ = P ⊕ D_r, so a subset of the erosion gives a superset.
     Both are exact along straight offsets; the arcs differ by ≤ r·(1/κ − 1).
