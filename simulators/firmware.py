@@ -63,6 +63,9 @@ _EOL = re.compile(rb"[\r\n]")
 _SIM_KEEPALIVE_CAP = 1000
 _N_PREFIX = re.compile(r"N\s*(-?\d+)\s*")
 _STRTOL = re.compile(r"\s*[+-]?\d+")
+# Marlin's EMERGENCY_PARSER: "M112" alone on a line (after an optional line number) kills at
+# once, even while the command queue is full.
+_EMERGENCY = re.compile(rb"\s*(?:N\s*-?\d+\s*)?M112\s*(?:[*;].*)?$")
 
 # Commands the firmware accepts and (for the simulation) need no effect.
 _NOOP = frozenset({
@@ -189,6 +192,7 @@ class Firmware:
     def _power_on(self, *, banner: bool) -> None:
         self.last_n = 0
         self._ring = bytearray()
+        self._ep_line = bytearray()
         self._line = bytearray()
         self._line_overflow = False
         self._in_comment = False
@@ -311,26 +315,48 @@ class Firmware:
 
     def _arrivals(self) -> None:
         room = self.fw.rx_buffer - len(self._ring)
-        while self._pending and self._pending[0][0] <= self.now:
+        while self._pending and self._pending[0][0] <= self.now and not self.halted:
             data = self._pending[0][1]
             off = self._pending_off  # consumed bytes of the head chunk (no O(n²) slicing)
             left = len(data) - off
             if left <= room:
-                self._ring += data[off:]
+                self._take(data[off:])
                 room -= left
                 self._pending.popleft()
                 self._pending_off = 0
             elif self.fw.rx_overflow_drops:
-                self._ring += data[off:off + room]
+                self._take(data[off:off + room])
                 self.stats.bytes_dropped += left - room
                 room = 0
                 self._pending.popleft()
                 self._pending_off = 0
             else:  # flow control holds the rest back
                 if room > 0:
-                    self._ring += data[off:off + room]
+                    self._take(data[off:off + room])
                     self._pending_off = off + room
                 break
+            if self.halted:
+                return
+
+    def _take(self, data: bytes) -> None:
+        """Bytes enter the receive ring; Marlin's emergency parser sees them on the way."""
+        self._ring += data
+        if self.fw.name == "klipper":
+            return
+        start = 0
+        while True:
+            m = _EOL.search(data, start)
+            piece = data[start:m.start() if m else len(data)]
+            if len(self._ep_line) < 64:
+                self._ep_line += piece[:64]
+            if not m:
+                return
+            if _EMERGENCY.match(self._ep_line):
+                self.executed.append((None, "M112"))
+                self._kill()
+                return
+            self._ep_line.clear()
+            start = m.end()
 
     def _periodic(self) -> None:
         if self._active is not None and self.now >= self._keepalive_at:
@@ -464,6 +490,8 @@ class Firmware:
     def _kill(self) -> None:
         self._emit(KILLED if self.fw.name != "klipper" else "!! Shutdown due to M112 command")
         self.halted = True
+        self._ring.clear()
+        self._line.clear()
         self._queue.clear()
         self._planner.clear()
         self._active = None
@@ -480,6 +508,9 @@ class Firmware:
 
     def _start_block(self, t: float) -> None:
         b = self._planner[0]
+        if b.e1 > b.e0 + 1e-12:  # material leaves the orifice, moving or not
+            # Deposited when the block runs: a kill (M112) empties the planner unprinted.
+            self.deposition.add(b.start, b.end, b.e1 - b.e0, b.index)
         prev = self._prev_block
         self._entry = prev.exit_speed if prev is not None and t == self._exec_end else 0.0
         self._exec_start = t
@@ -594,8 +625,7 @@ class Firmware:
                     cold = True
                     b.e1 = b.e0
                 yield ("slot",)
-                if b.e1 > b.e0 + 1e-12:  # material leaves the orifice, moving or not
-                    self.deposition.add(b.start, b.end, b.e1 - b.e0, len(self.executed) - 1)
+                b.index = len(self.executed) - 1
                 self._push_block(b)
             if cold:
                 self.stats.cold_extrusions += 1
@@ -760,7 +790,10 @@ class Firmware:
 
     # ================================================================ record
     def record(self) -> DepositionRecord:
-        """The deposition record so far (layers, executed log, statistics, MMC findings)."""
+        """The deposition record so far (layers, executed log, statistics, MMC findings).
+
+        Blocks still waiting in the planner are not printed yet; :meth:`drain` first for
+        the record of a finished print."""
         s = self.stats
         stats = {
             "firmware": self.fw.name, "machine": self.config.machine.name,

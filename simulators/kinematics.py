@@ -62,6 +62,8 @@ class Block:
         Unit vector of the XY(Z) motion, or None.
     duration
         Filled in when the planner starts the block, s.
+    index
+        Index of the command that made the block in the executed log.
     """
 
     start: np.ndarray
@@ -75,6 +77,7 @@ class Block:
     direction: np.ndarray | None = None
     duration: float = 0.0
     exit_speed: float = 0.0
+    index: int = -1  # the command's place in the executed log
 
 
 def trapezoid_time(length: float, v_entry: float, v_exit: float, v_max: float,

@@ -41,6 +41,7 @@ def _stream(commands: list[str], **kw) -> Firmware:
     ser.open()
     MiniHost(ser).stream(commands)
     ser.close()
+    ser.simulator.firmware.drain()  # the last blocks print after their 'ok'
     return ser.simulator.firmware
 
 
@@ -232,3 +233,20 @@ def test_record_written_atomically_as_json(tmp_path):
     region = shapely.from_wkt(doc["layers"][0]["region_wkt"])
     assert region.area == pytest.approx(doc["layers"][0]["deposited_area"], rel=1e-4)
     assert doc["stats"]["motion_time_s"] > 0
+
+
+def test_kill_leaves_queued_blocks_unprinted():
+    cmds = ["M302 P1", "G1 Z0.2 F600", "G1 X10 Y10 F3000",
+            *[f"G1 X{10 + 5 * (i % 2)} Y{10 + i} E{i}" for i in range(1, 11)]]
+    whole = _run(cmds).record()
+    fw = Firmware(make_config())
+    fw.connect()
+    fw.receive("".join(c + "\n" for c in cmds).encode(), 0.0)
+    fw.advance(0.0)
+    fw.advance(1.0)  # the first moves run
+    fw.receive(b"M112\n", 1.0)
+    fw.advance(1.0)
+    assert fw.halted  # the emergency parser acts although the command queue is full
+    fw.drain()
+    killed = fw.record()
+    assert sum(lr.moves for lr in killed.layers) < sum(lr.moves for lr in whole.layers)

@@ -325,3 +325,16 @@ def test_every_profile_runs_on_the_shipped_ttr_machine(profile):
     fw = _fw(profile=profile, machine="ttr")
     out = _say(fw, b"G28\nG1 X10 Y10 C90 F3000\nM114\n")
     assert "C:90.00" in out
+
+
+@pytest.mark.parametrize("line", [b"M112\n", b"N7 M112*99\n", b"  M112 ; stop\r\n"])
+def test_emergency_parser_kills_while_the_queue_is_full(line):
+    fw = _fw(firmware={"command_buffer": 2})
+    fw.receive(b"G4 S100\nG4 S100\nG4 S100\nG4 S100\n", 0.0)
+    fw.advance(0.0)
+    assert len(fw._queue) == 2
+    fw.receive(line, 0.0)
+    fw.advance(0.0)
+    assert fw.halted
+    out = b"".join(x for x in fw.take_output() if isinstance(x, bytes)).decode()
+    assert out.endswith("Error:Printer halted. kill() called!\n")
