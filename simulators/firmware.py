@@ -47,7 +47,7 @@ from simulators.faults import FaultInjector
 from simulators.kinematics import Block, MotionError, MotionState, junction_speed, trapezoid_time
 from simulators.parsing import Command, parse_command
 
-__all__ = ["Disconnect", "Firmware", "Heater", "Stall", "checksum"]
+__all__ = ["Disconnect", "Firmware", "Heater", "Stall", "Stats", "checksum"]
 
 ERR_CHECKSUM = "checksum mismatch, Last Line: "
 ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
