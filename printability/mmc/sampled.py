@@ -870,6 +870,9 @@ def _chunks(space: SampleSpace, machine: Machine, nozzle: Nozzle, g: BaseGeometr
         rest = sum(math.hypot(*jj.offset) for jj in joints[2:])
         rest += sum(max(abs(jj.lo), abs(jj.hi)) for jj in joints[1:] if jj.kind == "prismatic")
         rest += math.hypot(*machine.tool_offset) + nozzle.radius
+        # plus how far the axis moves within half a step of the first joint, so that
+        # configurations between the skipped samples cannot reach G either
+        rest += space.levers[0] * space.steps[0] / 2 + space.slack
         minx, miny, maxx, maxy = g.bounds
         dx = np.maximum(np.maximum(minx - centre[:, 0], centre[:, 0] - maxx), 0.0)
         dy = np.maximum(np.maximum(miny - centre[:, 1], centre[:, 1] - maxy), 0.0)

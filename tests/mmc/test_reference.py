@@ -120,6 +120,21 @@ def test_ellipse_in_a_slot_prints_the_slot_on_ttr():
     assert 30.0 <= max(off) < 32.6
 
 
+def test_limited_rotary_range_agrees_with_the_exact_engine():
+    g = slot(0.5, 6.0, angle=20.0)
+    spec, machine = "ellipse:major=0.8,minor=0.3", "ttr:min=-30,max=30,step=10"
+    ref = reference(g, spec, machine, resolution=0.02)
+    ex = compute_mmc(g, spec, machine, engine="exact")
+    lo, hi = ref.lost_area_bounds
+    elo, ehi = ex.lost_area_bounds
+    assert lo <= ehi + 1e-9 and elo <= hi + 1e-9
+    np.testing.assert_allclose(ref.motion.angles, [-30, -20, -10, 0, 10, 20, 30])
+    # turned by 20°, the slot is reached from 0° to 30° only (and -10° with 30° off-axis)
+    fits = [a for a, r in zip(ref.motion.angles, ref.motion.regions, strict=True)
+            if not r.is_empty]
+    assert min(fits) >= -10.0
+
+
 def test_u_shape_components():
     # arms 4 mm wide, base 2 mm: a 2.5 mm disk fits each arm, not the base
     assert reference(u_shape(), "circle:d=2.5", resolution=0.04).components.count == 2

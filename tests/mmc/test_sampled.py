@@ -131,6 +131,16 @@ def test_ellipse_in_a_slot_prints_the_slot_on_ttr():
     assert off.max() == pytest.approx(30.0)
 
 
+def test_limited_rotary_range_samples_both_ends():
+    g = slot(0.5, 6.0)
+    res = sampled(g, "ellipse:major=0.8,minor=0.3", "ttr:min=-30,max=30,step=10",
+                  resolution=0.02)
+    angles = np.unique(res.motion.samples[:, 2])
+    np.testing.assert_allclose(angles, [-30, -20, -10, 0, 10, 20, 30])
+    assert res.components.count == 1
+    assert res.lost_area < 0.05 * g.area
+
+
 @pytest.mark.parametrize("name", sorted(CATALOGUE))
 def test_agrees_with_the_exact_engine_on_xy(name):
     g = CATALOGUE[name].region
