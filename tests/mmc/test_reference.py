@@ -165,11 +165,14 @@ def _overlap(a, b):
 
 
 @pytest.mark.parametrize("name", sorted(CATALOGUE))
-def test_agrees_with_the_exact_engine_on_the_catalogue(name):
+def test_agrees_with_the_exact_and_raster_engines_on_the_catalogue(name):
     g = CATALOGUE[name].region
     ex = compute_mmc(g, "circle:d=0.6", "xy", engine="exact")
+    ras = compute_mmc(g, "circle:d=0.6", "xy", engine="raster",
+                      settings=Settings(resolution=0.04))
     ref = reference(g, "circle:d=0.6", "xy", resolution=0.04)
     _overlap(ex, ref)
+    _overlap(ras, ref)
     assert ref.as_built.difference(g).area <= 1e-9
     # what the reference promises lies inside what the exact engine says is printable
     assert ref.as_built.difference(ex.as_built.buffer(1e-6)).area <= 1e-6

@@ -142,11 +142,14 @@ def test_limited_rotary_range_samples_both_ends():
 
 
 @pytest.mark.parametrize("name", sorted(CATALOGUE))
-def test_agrees_with_the_exact_engine_on_xy(name):
+def test_agrees_with_the_exact_and_raster_engines_on_xy(name):
     g = CATALOGUE[name].region
     ex = compute_mmc(g, "circle:d=0.6", "xy", engine="exact")
+    ras = compute_mmc(g, "circle:d=0.6", "xy", engine="raster",
+                      settings=Settings(resolution=0.04))
     res = sampled(g, "circle:d=0.6", "xy", resolution=0.04)
     _overlap(ex, res)
+    _overlap(ras, res)
     assert res.as_built.difference(g).area <= 1e-9
 
 
