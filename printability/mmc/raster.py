@@ -237,13 +237,18 @@ def _mask_runs(mask: np.ndarray, radius: int) -> list[tuple[int, int, int]]:
 def _to_runs(runs: list[tuple[int, int, int]], *, dilate: bool, order_from_centre: bool
              ) -> _Runs:
     """Word-kernel runs; a dilation run reads row i − di from column j − dj − L + 1."""
+    # Runs longer than 64 pixels are split: a doubling-table level l combines word w with
+    # word w + 1 shifted by 2^(l-1) bits, which is only defined up to level 6 (32-bit
+    # shift; a 64-bit shift of a uint64 is undefined). Unsplit 128+ pixel runs (a 1 mm
+    # nozzle at h < 0.008 mm) made erosion keep infeasible positions.
+    split = []
+    for di, dj, L in runs:
+        for s0 in range(0, L, 64):
+            split.append((di, dj + s0, min(64, L - s0)))
+    runs = split
     if dilate:
-        # the dilation kernel reads runs of at most 64 pixels (see dilate_words)
-        split = []
-        for di, dj, L in runs:
-            for s0 in range(0, L, 64):
-                split.append((di, dj + s0, min(64, L - s0)))
-        runs = [(-di, -dj - L + 1, L) for di, dj, L in split]
+        # the dilation kernel reads row i − di from column j − dj − L + 1
+        runs = [(-di, -dj - L + 1, L) for di, dj, L in runs]
     if runs:
         # erosion stops at 0: the runs far from the centre decide first; dilation stops when
         # covered: the central runs first.
