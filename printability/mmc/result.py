@@ -147,6 +147,8 @@ class MotionRestriction:
             return shapely.union_all(list(self.regions))
         if self.masks is not None:
             return Raster(self.masks.grid, self.masks.data.any(axis=0))
+        if self.packed is not None:
+            return self.packed.any()
         return None
 
 
