@@ -13,9 +13,9 @@ __all__ = [
     "FileFormatError",
     "InputError",
     "NozzleTooLargeError",
-    "PrinterError",
     "PrintabilityError",
     "PrintabilityOSError",
+    "PrinterError",
     "ResourceError",
     "UnknownOptionError",
 ]

@@ -15,8 +15,8 @@ from printability.errors import UnknownOptionError
 
 __all__ = [
     "BEAD_MODELS",
-    "ENGINES",
     "ENDSTOP_POLICIES",
+    "ENGINES",
     "EXTRUDER_ERROR_POLICIES",
     "E_POLICIES",
     "FAULT_KINDS",

@@ -31,5 +31,5 @@ def test_long_kernel_runs_keep_the_promise(spec):
     iy, ix = np.nonzero(mask.data)
     pick = np.random.default_rng(0).choice(len(ix), size=min(4000, len(ix)), replace=False)
     fp = np.asarray(parse_nozzle(spec).outline(0, mode="outer").exterior.coords)
-    placed = [shapely.Polygon(fp + (xs[ix[k]], ys[iy[k]])) for k in pick]
+    placed = [shapely.Polygon(fp + np.array([xs[ix[k]], ys[iy[k]]])) for k in pick]
     assert shapely.within(np.array(placed), g).all()
