@@ -241,22 +241,37 @@ def _split_lines(
         convex (ring starts and shortcut-prone vertices): the caller adds a
         disk there.
     """
-    # points closer than 10⁻⁹·d merged (covered by the 10⁻⁵ margin of the bands):
-    # GEOS fails on the zero-length pieces they would make
-    polys = polygons_of(shapely.remove_repeated_points(geom, 1e-9 * d))
+    polys = polygons_of(geom)
     if side:
         polys = [shapely.geometry.polygon.orient(q, 1.0) for q in polys]
     rings = shapely.get_rings(np.asarray(polys, dtype=object))
     if len(rings) == 0:
         return np.empty(0, dtype=object), np.empty((0, 2))
     coords, ring_idx = shapely.get_coordinates(rings, return_index=True)
-    # drop the closing vertex of each ring; work per ring with cyclic neighbours
+    # drop the closing vertex of each ring, and every vertex closer than 10⁻⁹·d
+    # to the one before (GEOS fails on zero-length pieces; the bands' 10⁻⁵·d
+    # margin covers the move); rings left with fewer than 3 vertices have no
+    # area and are dropped (leaving out a piece only shrinks a band)
     counts = np.bincount(ring_idx, minlength=len(rings))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     keep = np.ones(len(coords), bool)
     keep[starts + counts - 1] = False
+    step = np.r_[np.inf, np.hypot(*np.diff(coords, axis=0).T)]
+    step[starts] = np.inf
+    keep &= step > 1e-9 * d
+    # the last kept vertex of a ring must not sit on its first one either
+    last = np.array([np.flatnonzero(keep[s0:s0 + c])[-1] + s0 if keep[s0:s0 + c].any() else -1
+                     for s0, c in zip(starts, counts, strict=True)])
+    ok = last >= 0
+    close = np.zeros(len(rings), bool)
+    close[ok] = np.hypot(*(coords[last[ok]] - coords[starts[ok]]).T) <= 1e-9 * d
+    keep[last[close & (last != starts)]] = False
+    n = np.bincount(ring_idx[keep], minlength=len(rings))
+    keep &= (n >= 3)[ring_idx]
     pts = coords[keep]
-    n = counts - 1
+    n = n[n >= 3]
+    if len(n) == 0:
+        return np.empty(0, dtype=object), np.empty((0, 2))
     first = np.concatenate([[0], np.cumsum(n)[:-1]])
     ridx = np.repeat(np.arange(len(n)), n)
     local = np.arange(len(pts)) - first[ridx]
