@@ -78,7 +78,7 @@ class OrientationOptions:
 
     tolerance: float = 1e-3
     quad_segs: int = 16
-    search_step: float = 5.0
+    search_step: float = 10.0
     width_slack: float = 0.02
     split_length: float | None = None
     fold_max: float = 20.0
@@ -220,8 +220,11 @@ def swept_footprints(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: 
     # The directions are turned so that two of them are normal to the move:
     # the long sides of the swept set are then exact, not cut by a spike.
     normal = np.arctan2(p1[:, 0] - p0[:, 0], -(p1[:, 1] - p0[:, 1]))
-    t = normal[:, None] + np.arange(directions)[None, :] * (2 * math.pi / directions)
-    cu, su = np.cos(t), np.sin(t)
+    base = np.arange(directions) * (2 * math.pi / directions)
+    cn, sn = np.cos(normal)[:, None], np.sin(normal)[:, None]
+    cb, sb = np.cos(base)[None, :], np.sin(base)[None, :]
+    cu = cn * cb - sn * sb  # cos(normal + base), without a cos per element
+    su = sn * cb + cn * sb
 
     def h_at(phi: np.ndarray) -> np.ndarray:
         r = np.deg2rad(phi)[:, None]
@@ -589,11 +592,12 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
     A move usually fails because one end pokes out at a corner: first the
-    longest sub-interval that fits at one of the four cheapest orientations is
+    longest sub-interval that fits at one of the two cheapest orientations is
     found among intervals trimmed at the start, the end or both by
-    geometrically growing lengths; the trimmed-off parts are then cut into
-    pieces no longer than ``split_length`` and each piece is searched alone.
-    Two vectorised searches in all, whatever the number of moves.
+    geometrically growing lengths; each trimmed-off part is then searched
+    whole at every orientation and, where nothing fits, halved (down to
+    twice ``split_length``) and searched again. A few vectorised searches in all,
+    whatever the number of moves.
     """
     n = len(a)
     step = options.split_length or max(0.05, nozzle.radius / 4)
@@ -601,11 +605,11 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     prev = np.where(np.isnan(prev), 0.0, prev)
     near, werr, turn = _cost_terms(direction, width, prev, cands, beta, wtab, per)
     key = werr / max(options.width_slack, 1e-9) + turn / 30.0
-    top = np.take_along_axis(near, np.argsort(key, axis=1, kind="stable")[:, :4], axis=1)
+    top = np.take_along_axis(near, np.argsort(key, axis=1, kind="stable")[:, :2], axis=1)
     # candidate intervals per move
     mv, t0s, t1s = [], [], []
     for i in range(n):
-        if length[i] <= 4 * step:
+        if length[i] <= 2 * step:
             continue
         d = step / length[i]
         while d < 0.5:
@@ -630,33 +634,34 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
             rows = np.flatnonzero(mv_a == i)
             j = rows[int(np.argmax(span[rows]))]
             keep[i] = (float(t0a[j]), float(t1a[j]), float(phis[j]))
-    # the rest of every move in pieces of at most `step`
-    pm, pt0, pt1 = [], [], []
-    for i in range(n):
-        t0, t1, _ = keep[i]
-        ranges = [(0.0, 1.0)] if t1 <= t0 else [(0.0, t0), (t1, 1.0)]
-        for ra, rb in ranges:
-            if rb - ra <= 1e-12:
-                continue
-            m = max(1, math.ceil(length[i] * (rb - ra) / step))
-            t = np.linspace(ra, rb, m + 1)
-            pm += [i] * m
-            pt0 += t[:-1].tolist()
-            pt1 += t[1:].tolist()
     out: list[list[OrientedPiece]] = [[] for _ in range(n)]
     for i in range(n):
         if keep[i][1] > keep[i][0]:
             out[i].append(OrientedPiece(*keep[i]))
-    if pm:
-        pm_a = np.array(pm)
-        pt0_a, pt1_a = np.array(pt0), np.array(pt1)
-        q0 = a[pm_a] + pt0_a[:, None] * (b - a)[pm_a]
-        q1 = a[pm_a] + pt1_a[:, None] * (b - a)[pm_a]
-        found, best = _search(target, pieces, q0, q1, direction[pm_a], width[pm_a], prev[pm_a],
+    # what is left of every move: each part searched whole at every orientation; a part
+    # that fits nowhere is halved (down to `step`) and searched again
+    todo = []
+    for i in range(n):
+        t0, t1, _ = keep[i]
+        ranges = [(0.0, 1.0)] if t1 <= t0 else [(0.0, t0), (t1, 1.0)]
+        todo += [(i, ra, rb) for ra, rb in ranges if rb - ra > 1e-12]
+    while todo:
+        idx = np.array([i for i, _, _ in todo])
+        ta = np.array([r for _, r, _ in todo])
+        tb = np.array([r for _, _, r in todo])
+        q0 = a[idx] + ta[:, None] * (b - a)[idx]
+        q1 = a[idx] + tb[:, None] * (b - a)[idx]
+        found, best = _search(target, pieces, q0, q1, direction[idx], width[idx], prev[idx],
                               cands, beta, wtab, per, options,
-                              None if scale is None else scale[pm_a])
-        for k in np.flatnonzero(found).tolist():
-            out[pm[k]].append(OrientedPiece(pt0[k], pt1[k], float(best[k])))
+                              None if scale is None else scale[idx])
+        nxt = []
+        for k, (i, ra, rb) in enumerate(todo):
+            if found[k]:
+                out[i].append(OrientedPiece(ra, rb, float(best[k])))
+            elif length[i] * (rb - ra) > 2 * step:
+                mid = (ra + rb) / 2
+                nxt += [(i, ra, mid), (i, mid, rb)]
+        todo = nxt
     return [_merge(sorted(o, key=lambda p: p.t0)) for o in out]
 
 

@@ -1,0 +1,103 @@
+"""Benchmark: post-processing a part against the slicer's own time to slice it.
+
+For each STL of ../shared/data/stl, the real PrusaSlicer (Debian's
+``prusa-slicer``) slices it with ``tests/postprocess/data/prusaslicer_ttr.ini``;
+then ``printability.postprocess`` rewrites that G-code for an elliptical
+nozzle on a T-T-R machine (and, as the floor, for a round nozzle, which only
+parses the file and adds the comment block). Printed per part: the slicer's
+time, ours, their ratio (the goal: ≤ 1), and our throughput in lines/s next
+to ArcWelder's published ~200 k lines/s (ArcWelder rewrites G1 runs into
+arcs: a comparable "read every line, rewrite some" post-processor; its
+figure is quoted, not measured here).
+
+Both wall and CPU times are given: on a shared machine the wall time of one
+process depends on the others, the CPU time much less. The slicer's CPU time
+is that of its child process (``resource.getrusage(RUSAGE_CHILDREN)``).
+
+Run::
+
+    python benchmarks/bench_postprocess.py            # every STL (several minutes)
+    python benchmarks/bench_postprocess.py --quick    # the calibration cube and ThinWall
+
+Nothing here is asserted: the figures go in the README.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data" / "stl"
+CONFIG = ROOT / "tests" / "postprocess" / "data" / "prusaslicer_ttr.ini"
+ARCWELDER_LINES_PER_S = 200_000
+ELLIPSE = "ellipse:major=0.8,minor=0.3"
+
+
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def slice_part(exe: str, stl: Path, out: Path) -> tuple[float, float]:
+    """Slice with PrusaSlicer; (wall s, CPU s)."""
+    c0 = _children_cpu()
+    t0 = time.perf_counter()
+    subprocess.run([exe, "--export-gcode", "--load", str(CONFIG), "--center", "110,110",
+                    "-o", str(out), str(stl)], check=True, capture_output=True)
+    return time.perf_counter() - t0, _children_cpu() - c0
+
+
+def postprocess(data: bytes, nozzle: str) -> tuple[float, float, object]:
+    from printability.postprocess import PostprocessOptions, postprocess_bytes
+
+    c0 = time.process_time()
+    t0 = time.perf_counter()
+    _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=nozzle, machine="ttr"))
+    return time.perf_counter() - t0, time.process_time() - c0, res
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="two small parts only")
+    args = ap.parse_args(argv)
+    exe = shutil.which("prusa-slicer")
+    if exe is None:
+        print("prusa-slicer is not installed (apt-get install prusa-slicer)", file=sys.stderr)
+        return 1
+    names = ["CalibrationCube.stl", "ThinWall.stl"] if args.quick else \
+        sorted(p.name for p in DATA.glob("*.stl"))
+    # warm up: imports and numba caches are paid once per process, not per file
+    with tempfile.TemporaryDirectory() as tmp:
+        warm = Path(tmp) / "warm.gcode"
+        slice_part(exe, DATA / "CalibrationCube.stl", warm)
+        postprocess(warm.read_bytes()[:200_000], ELLIPSE)
+        print(f"{'part':<24}{'lines':>8}{'slice s':>10}{'CPU':>7}"
+              f"{'ellipse s':>11}{'CPU':>7}{'ratio':>7}{'lines/s':>10}{'vs AW':>7}"
+              f"{'round s':>9}{'lines/s':>10}{'split':>7}{'dropped':>8}")
+        for name in names:
+            out = Path(tmp) / (Path(name).stem + ".gcode")
+            s_wall, s_cpu = slice_part(exe, DATA / name, out)
+            data = out.read_bytes()
+            e_wall, e_cpu, res = postprocess(data, ELLIPSE)
+            r_wall, r_cpu, _ = postprocess(data, "circle:d=0.4")
+            lines = res.lines_in
+            print(f"{name[:23]:<24}{lines:>8}{s_wall:>10.2f}{s_cpu:>7.2f}"
+                  f"{e_wall:>11.2f}{e_cpu:>7.2f}{e_cpu / max(s_cpu, 1e-9):>7.2f}"
+                  f"{lines / max(e_cpu, 1e-9):>10.0f}"
+                  f"{lines / max(e_cpu, 1e-9) / ARCWELDER_LINES_PER_S:>7.2f}"
+                  f"{r_wall:>9.2f}{lines / max(r_cpu, 1e-9):>10.0f}"
+                  f"{res.split_moves:>7}{res.dropped_moves:>8}")
+    print("ratio = our CPU time / the slicer's CPU time for the same part (goal <= 1); "
+          f"vs AW = our lines/s (CPU) / ArcWelder's ~{ARCWELDER_LINES_PER_S:,} lines/s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
