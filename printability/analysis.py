@@ -28,7 +28,7 @@ from printability.nozzle import Nozzle, parse_nozzle
 from printability.options import ENGINES
 from printability.settings import DEFAULT_SETTINGS, Settings
 
-__all__ = ["Analysis", "LayerOutcome", "NozzleAnalysis", "analyze"]
+__all__ = ["Analysis", "LayerOutcome", "NozzleAnalysis", "analyze", "select_layers"]
 
 
 @dataclass(frozen=True)
@@ -155,9 +155,71 @@ class Analysis:
             "engine": self.engine,
             "resolution": self.settings.resolution,
             "layers": len(self.layers),
+            **({"selected_layers": self.layers.meta["selected_layers"]}
+               if "selected_layers" in self.layers.meta else {}),
             "elapsed_s": self.elapsed,
             "nozzles": [n.to_json(multi_layer=self.multi_layer) for n in self.nozzles],
         }
+
+
+def select_layers(layers: LayerStack, spec: str) -> LayerStack:
+    """Keep some layers of a stack, by 0-based index.
+
+    Parameters
+    ----------
+    layers
+        The part.
+    spec
+        Comma-separated items, each an index ``7``, an inclusive range ``3-9`` or a
+        Python-style slice ``START:STOP[:STEP]`` (ends may be omitted, ``::10`` is
+        every tenth layer). Negative indices count from the top.
+
+    Returns
+    -------
+    LayerStack
+        The chosen layers in z order, renumbered from 0; each keeps its index in
+        the full stack as ``meta["source_index"]``.
+
+    Raises
+    ------
+    InputError
+        The spec cannot be read or selects no layer.
+    """
+    n = len(layers)
+    chosen: set[int] = set()
+
+    def bad(why: str) -> InputError:
+        return InputError(f"--layers {spec!r}: {why}; expected indices, ranges A-B or slices "
+                          f"START:STOP:STEP of the {n} layer(s) of {layers.source or 'the input'}"
+                          f" (0 is the bottom layer)")
+
+    for item in (t.strip() for t in spec.split(",")):
+        try:
+            if ":" in item:
+                parts = [int(v) if v.strip() else None for v in item.split(":")]
+                if len(parts) > 3 or (len(parts) == 3 and parts[2] == 0):
+                    raise bad(f"{item!r} is not a slice")
+                chosen.update(range(n)[slice(*parts)])
+            elif "-" in item.lstrip("-"):
+                a, b = item.lstrip("-").split("-", 1)
+                lo = -int(a) if item.startswith("-") else int(a)
+                hi = int(b)
+                for i in (lo, hi):
+                    if not -n <= i < n:
+                        raise bad(f"layer {i} does not exist")
+                chosen.update(range(lo % n, hi % n + 1))
+            else:
+                i = int(item)
+                if not -n <= i < n:
+                    raise bad(f"layer {i} does not exist")
+                chosen.add(i % n)
+        except ValueError:
+            raise bad(f"{item!r} is not a number, range or slice") from None
+    if not chosen:
+        raise bad("no layer selected")
+    kept = tuple(replace(layers[i], index=k, meta={**layers[i].meta, "source_index": i})
+                 for k, i in enumerate(sorted(chosen)))
+    return replace(layers, layers=kept, meta={**layers.meta, "selected_layers": sorted(chosen)})
 
 
 def _outcome(layer: Layer, nozzle: Nozzle, machine: Machine, engine: str,

@@ -41,27 +41,36 @@ def analyze_command(
                                     "MINX,MINY,MAXX,MAXY (file coordinates, lon/lat for maps)."),
     keep_largest: int | None = typer.Option(None, "--keep-largest",
                                             help="GeoJSON/WKT: keep the N largest polygons."),
+    layers_spec: str | None = typer.Option(None, "--layers",
+                                           help="Analyse only these layers (0 = bottom): "
+                                                "indices, ranges A-B or slices START:STOP:STEP, "
+                                                "comma-separated, e.g. 12 or 0:40:5."),
     json_out: Path | None = typer.Option(None, "--json", help="Write the result as JSON here."),  # noqa: B008
     out: Path | None = typer.Option(None, "--out", help="Write an HTML report with figures and "  # noqa: B008
                                     "the as-built geometry into this folder."),
-    workers: int = typer.Option(1, "--workers", "-j", help="Parallel processes for layers."),
+    workers: int = typer.Option(0, "--workers", "-j", min=0,
+                                help="Parallel processes for layers; 0 (default) uses every "
+                                     "core this process may run on."),
     scheduler: str | None = typer.Option(None, "--scheduler",
                                          help="Dask scheduler address to run layers on a cluster."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
     """Compute, per layer and per nozzle, the motion restriction P, the as-built layer S and
     what is lost; print the nozzles ranked by lost area."""
-    from printability.analysis import analyze
+    from printability.analysis import analyze, select_layers
     from printability.settings import Settings
     from printability.sources import load_layers
 
-    settings = Settings(resolution=resolution, angle_step=angle_step, workers=workers,
+    settings = Settings(resolution=resolution, angle_step=angle_step,
+                        workers=workers or local_cores(),
                         progress=progress)
     engine = ENGINES.check(engine)
     box = _parse_box(clip) if clip is not None else None
     layers = load_layers(input, layer_height=layer_height, first_layer_height=first_layer_height,
                          units=units, fit=fit, map_scale=map_scale, clip=box,
                          keep_largest=keep_largest, settings=settings)
+    if layers_spec is not None:
+        layers = select_layers(layers, layers_spec)
     for warning in layers.meta.get("warnings", ()):
         typer.echo(f"printability: warning: {warning}", err=True)
     with progress_callback("analysing layers", enabled=progress) as on_progress:
@@ -76,6 +85,16 @@ def analyze_command(
 
         index = write_report(result, out)
         typer.echo(f"report: {index}")
+
+
+def local_cores() -> int:
+    """Cores this process may run on (its CPU affinity), at least 1."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
 
 
 def _parse_box(text: str) -> tuple[float, float, float, float]:
