@@ -311,7 +311,7 @@ class Emitter:
 
     def extrude(self, x: float, y: float, *, feed: float, width: float | None = None,
                 height: float | None = None, e: float | None = None,
-                orientation: float | None = None, turn_while_moving: bool = False,
+                orientation: float | None = None, turn_while_moving: float | None = None,
                 comment: str | None = None) -> float:
         """An extruding straight move at a constant orientation.
 
@@ -330,9 +330,11 @@ class Emitter:
             Nozzle orientation during the move, degrees; when it differs from
             the current one a rotation-only move is emitted first.
         turn_while_moving
-            Turn to ``orientation`` *during* the move instead (the rotary word
-            goes on the extruding line); only for turns the caller checked
-            with the turning footprint.
+            The turn (degrees) the caller checked with the turning footprint:
+            when the axis reaches ``orientation`` by a turn no larger than it,
+            the turn is made *during* the move (the rotary word goes on the
+            extruding line); otherwise (near an axis limit the coordinate may
+            have to go the long way round) the nozzle turns standing still.
 
         Returns
         -------
@@ -350,7 +352,9 @@ class Emitter:
         extra: list[str] = []
         step = 0.0
         if orientation is not None:
-            if turn_while_moving:
+            o = self.options
+            if turn_while_moving is not None and o.rotary and abs(
+                    o.coordinate(orientation, self.angle) - self.angle) <= turn_while_moving + 1e-6:
                 extra, step = self._rotary(orientation)
                 if step:
                     self.rotations += 1

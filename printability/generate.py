@@ -298,10 +298,11 @@ def generate_gcode(
                     direction = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
                     w = noz.bead_width(direction, phi) if turns else grp.width
                     w = min(w, grp.width) if not turns else w
-                    whole = i not in plan.pieces
+                    fold = None
+                    if i not in plan.pieces and plan.fold[i]:
+                        fold = abs(float(plan.angle[i] - plan.angle[i - 1]))
                     em.extrude(float(b[0]), float(b[1]), feed=feed, width=w, height=h,
-                               orientation=phi if turns else None,
-                               turn_while_moving=bool(whole and plan.fold[i]))
+                               orientation=phi if turns else None, turn_while_moving=fold)
                     extruded += math.hypot(*(b - a))
                     if turns:
                         prev_angle = phi

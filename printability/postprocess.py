@@ -614,7 +614,9 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
         if simple:
             phi = seg_angle[a0]
             add: list[str] = []
-            if seg_fold[a0] and turns and math.isfinite(phi):
+            if seg_fold[a0] and turns and math.isfinite(phi) and \
+                    abs(coord_for(phi) - cur) <= _planned_turn(seg_angle, a0) + 1e-6:
+                # the turn checked by the planner, made while moving
                 c = coord_for(phi)
                 if format_number(c, d_ang) != format_number(cur, d_ang):
                     add = [wopts.letter + format_number(c, d_ang)]
@@ -668,7 +670,8 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
                     c = coord_for(phi)
                     if format_number(c, d_ang) != format_number(cur, d_ang):
                         c_word = (wopts.letter + format_number(c, d_ang)).encode()
-                        if not (seg_fold[s] and s not in seg_pieces):
+                        if not (seg_fold[s] and s not in seg_pieces
+                                and abs(c - cur) <= _planned_turn(seg_angle, s) + 1e-6):
                             lines_new.append(b"G1 " + c_word)
                             c_word = b""
                         out.rotary_words += 1
@@ -715,6 +718,17 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
         out.chunks.extend(pieces_out)
         last_travel_chunk = None
     return out, turned
+
+
+def _planned_turn(seg_angle: np.ndarray, s: int) -> float:
+    """The turn into chord ``s`` the planner checked (from the chord before), degrees.
+
+    A turn folded into an extruding move must be that one: near an axis limit the
+    coordinate may have to go the long way round, which was never checked.
+    """
+    if s == 0 or not (math.isfinite(seg_angle[s]) and math.isfinite(seg_angle[s - 1])):
+        return -1.0
+    return abs(float(seg_angle[s] - seg_angle[s - 1]))
 
 
 def _needs_work(mi, first_seg, seg_pieces, seg_angle, turns, moves, seg_width_laid, widths,

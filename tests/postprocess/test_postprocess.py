@@ -217,3 +217,29 @@ def test_output_option_leaves_the_input(prusa_short, tmp_path):
     res = postprocess_file(prusa_short, options=PostprocessOptions(nozzle=ELLIPSE), output=out)
     assert prusa_short.read_bytes() == before
     assert Path(res.output) == out and already_processed(out.read_bytes())
+
+
+@pytest.mark.parametrize(("machine", "lo", "hi"), [("ttr:min=-90,max=90", -90.0, 90.0),
+                                                    ("ttr:min=0,max=45", 0.0, 45.0)])
+def test_limited_rotary_axis_stays_within_its_limits(prusa_short, machine, lo, hi):
+    data = prusa_short.read_bytes()
+    new, _ = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine=machine))
+    g = parse_gcode(new)
+    c = g.words["value"][g.words["letter"] == ord("C")]
+    assert c.size > 0
+    assert c.min() >= lo - 1e-9 and c.max() <= hi + 1e-9
+    # and still nothing outside the part
+    targets = _layer_targets(parse_gcode(data), 1.75, 32)
+    reports = check_deposition(extrusion_chords(g), targets, parse_nozzle(ELLIPSE), layers=[2])
+    assert reports[0].max_outside <= TOL + 2e-4
+
+
+def test_xy_machine_never_turns_an_ellipse(prusa_short):
+    data = prusa_short.read_bytes()
+    new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="xy"))
+    assert res.rotary_words == 0 and res.split_moves + res.dropped_moves > 0
+    g = parse_gcode(new)
+    assert not (g.words["letter"] == ord("C")).any()
+    targets = _layer_targets(parse_gcode(data), 1.75, 32)
+    reports = check_deposition(extrusion_chords(g), targets, parse_nozzle(ELLIPSE), layers=[3])
+    assert reports[0].max_outside <= TOL + 2e-4
