@@ -146,3 +146,18 @@ def test_cli_generate(tmp_path, shared_data):
                         capture_output=True, text=True, timeout=600)
     assert r2.returncode == 1 and r2.stderr.startswith("printability: error:")
     assert not (tmp_path / "x.gcode").exists()
+
+
+@pytest.mark.parametrize("machine", ["ttr:min=-90,max=90", "ttr:min=0,max=30", "xy"])
+def test_limited_axes_keep_limits_and_mmc(machine):
+    stack = _stack(_l_shape())
+    text, _ = generate_gcode(stack, ELLIPSE, machine, options=GenerateOptions(center=False))
+    g = parse_gcode(text.encode())
+    c = g.words["value"][g.words["letter"] == ord("C")]
+    if machine == "xy":
+        assert c.size == 0
+    else:
+        lo, hi = (float(v.split("=")[1]) for v in machine.split(":")[1].split(","))
+        assert c.min() >= lo - 1e-9 and c.max() <= hi + 1e-9
+    reports = check_deposition(extrusion_chords(g), [stack[0].region], parse_nozzle(ELLIPSE))
+    assert reports[0].max_outside <= 1e-3 + 2e-4
