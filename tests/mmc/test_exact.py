@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import shapely
 from shapely.geometry import Point, box
-from shapes import catalogue, load_coastline, rectangle, slot, strip, u_shape
+from shapes import catalogue, load_coastline, load_slice, rectangle, slot, strip, u_shape
 
 from printability.errors import InputError, NozzleTooLargeError
 from printability.geometry import rotation_matrix
@@ -302,6 +302,21 @@ def test_progress_bar_goes_to_stderr(capsys):
     res = exact(u_shape(), "rect:w=1,h=0.4", "ttr", angle_step=30, progress=True)
     out = capsys.readouterr()
     assert out.out == "" and res.lost_area >= 0
+
+
+def test_real_slice_ellipse_at_minus_74_degrees(shared_data):
+    """Regression: at this angle the verified erosion once kept slivers along ∂G
+    (an edge that failed the check survived its cut unchanged and was not
+    re-checked), and S leaked 1.36 mm² out of the part."""
+    g, _, _ = load_slice(shared_data / "slices" /
+                         "jet-engine-Fan---Cut-1-of-3-With-Supports_outline_mesh0_z19700.txt")
+    noz = parse_nozzle("ellipse:major=1.6,minor=0.6,angle=-74")
+    res = exact(g, noz)
+    assert res.as_built.difference(g).area == 0.0
+    assert not any("internal check" in n for n in res.notes)
+    p = res.motion.regions[0]
+    pts = shapely.get_coordinates(p)[::7]
+    assert all(nozzle_inside(g, noz, 0.0, xy) for xy in pts)
 
 
 @pytest.mark.slow
