@@ -744,14 +744,27 @@ def _sweep_segments(space: SampleSpace, ids2: np.ndarray, rows: np.ndarray, a: n
         moved = span > 0
         if moved.any():
             grow = float(sag[moved].max()) * 1.001
-            outer = base.outer if check is None else check
-            if grow > 0:
-                outer = tuple(_ring(Polygon(c).buffer(grow, join_style="mitre",
-                                                      mitre_limit=1e3))[:-1] for c in outer)
-            for coords in outer:
-                hull = _hulls([_placed(coords, phi_a[moved], t_a[moved]),
-                               _placed(coords, phi_b[moved], t_b[moved])])
-                ok[moved] &= shapely.contains_properly(g, hull)
+
+            def inside(polys: tuple[np.ndarray, ...], sel: np.ndarray) -> np.ndarray:
+                if grow > 0:
+                    polys = tuple(_ring(Polygon(c).buffer(grow, join_style="mitre",
+                                                          mitre_limit=1e3))[:-1]
+                                  for c in polys)
+                res = np.ones(len(sel), dtype=bool)
+                for coords in polys:
+                    hull = _hulls([_placed(coords, phi_a[sel], t_a[sel]),
+                                   _placed(coords, phi_b[sel], t_b[sel])])
+                    res &= shapely.contains_properly(g, hull)
+                return res
+
+            # the coarse outer polygons contain the true orifice too: a hull that passes
+            # with them is safe; only their failures are checked with the fine ones
+            sel = np.flatnonzero(moved)
+            res = inside(base.outer, sel)
+            ok[sel] = res
+            if check is not None and not res.all():
+                again = sel[~res]
+                ok[again] = inside(check, again)
         idx = np.flatnonzero(ok)
         for coords in base.inner:
             out.extend(_hulls([_placed(coords, phi_a[idx], t_a[idx]),
