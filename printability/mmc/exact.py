@@ -81,8 +81,9 @@ mapped plane):
   shortcut is used instead. *This is the set the engine reports as P.*
 * **S_inner ⊆ P_inner ⊕ D_r ⊆ S.** P ⊕ D_r = P ∪ (∂P ⊕ D_r), and the outer
   band is a subset of ∂P ⊕ D_r.
-* **P ⊆ P_outer and S ⊆ S_outer.** P_outer = G minus the inner band of ∂G
-  (a subset of ∂G ⊕ D_r), a superset of P. S_outer = the complement of
+* **P ⊆ P_outer and S ⊆ S_outer.** P_outer = G minus the two-sided band of
+  ∂G (a subset of ∂G ⊕ D_r that holds ∂G strictly inside, so no rounding
+  slivers are left along ∂G to be dilated later), a superset of P. S_outer = the complement of
   the verified erosion of P_outer's complement (within a frame),
   intersected with G: (Pᶜ ⊖ D_r)ᶜ = P ⊕ D_r.
 * Zero-area holes (slits left by unions of touching pieces) are closed:
@@ -342,6 +343,20 @@ def _split_lines(
     return shapely.linestrings(pts[offs], indices=piece_id), caps
 
 
+def _two_sided_band(geom: BaseGeometry, r: float, quad_segs: int) -> BaseGeometry:
+    """A subset of ∂geom ⊕ D_r covering both sides of the boundary.
+
+    Used where slivers along ∂geom would matter (G minus a one-sided band
+    leaves rounding slivers on ∂G, which a later dilation would grow into a
+    band of width r): the boundary lies strictly inside this band.
+    """
+    d = r * (1.0 - _REDUNDANT)
+    lines, _ = _split_lines(geom, d)
+    if len(lines) == 0:
+        return _EMPTY
+    return _union_in_order(_buffer_pieces(lines, d, quad_segs))
+
+
 def _side_band(geom: BaseGeometry, r: float, quad_segs: int, side: int) -> BaseGeometry:
     r"""A subset of ∂geom ⊕ D_r on one side of the boundary: −1 outside, +1 inside.
 
@@ -448,8 +463,13 @@ def _certified_erosion(g: BaseGeometry, r: float, quad_segs: int) -> MultiPolygo
     seg_geoms = shapely.linestrings(segs)
     tree = shapely.STRtree(seg_geoms)
     cover = r * _disk_cover(quad_segs)
+    # rounding slivers along ∂G (where the band's edge meets G's) have no area:
+    # drop them (a subset stays a subset) instead of cutting them round by round
+    minx, miny, maxx, maxy = g.bounds
+    tiny = 1e-12 * max(maxx - minx, maxy - miny) ** 2
     passed: set[bytes] = set()  # edges found ≥ r from ∂G (exact coordinates)
     for _ in range(_MAX_FIXES):
+        raw = MultiPolygon([q for q in raw.geoms if q.area > tiny])
         edges = _boundary_segments(raw)
         if len(edges) == 0:
             return raw
@@ -609,8 +629,8 @@ def erode_disk(g: BaseGeometry, r: float, *, quad_segs: int, outer: bool = False
         Chords per quarter circle used by GEOS.
     outer
         False: a subset of the exact erosion (:func:`_certified_erosion`).
-        True: a superset, G minus a subset of ∂G ⊕ D_r (:func:`_side_band`,
-        inner side).
+        True: a superset, G minus a subset of ∂G ⊕ D_r
+        (:func:`_two_sided_band`).
 
     Notes
     -----
@@ -623,7 +643,7 @@ def erode_disk(g: BaseGeometry, r: float, *, quad_segs: int, outer: bool = False
         return _as_multi(g)
     if not outer:
         return _certified_erosion(g, r, quad_segs)
-    return _as_multi(shapely.difference(g, _side_band(g, r, quad_segs, +1)))
+    return _as_multi(shapely.difference(g, _two_sided_band(g, r, quad_segs)))
 
 
 def dilate_disk(p: BaseGeometry, r: float, *, quad_segs: int, outer: bool = False) -> MultiPolygon:
