@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from printability import __version__
-from printability.errors import InputError, NozzleTooLargeError
+from printability.errors import InputError, NozzleTooLargeError, PrintabilityOSError
 from printability.layers import Layer, LayerStack
 from printability.machine import Machine, parse_machine
 from printability.mmc import MMCResult, choose_engine, compute_mmc
@@ -160,6 +160,10 @@ class Analysis:
             "elapsed_s": self.elapsed,
             "nozzles": [n.to_json(multi_layer=self.multi_layer) for n in self.nozzles],
         }
+
+
+SCHEDULER_TIMEOUT = "20s"
+"""How long to wait for a Dask scheduler to answer before giving up."""
 
 
 def select_layers(layers: LayerStack, spec: str) -> LayerStack:
@@ -331,7 +335,15 @@ def _map(tasks: list[tuple], *, settings: Settings, scheduler: str | None,
             from dask.distributed import Client
         except ImportError:
             raise InputError("--scheduler needs Dask: pip install 'printability[dask]'") from None
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT, set_as_default=False)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise PrintabilityOSError(
+                f"cannot reach the Dask scheduler at {scheduler} within {SCHEDULER_TIMEOUT} "
+                f"({type(exc).__name__}: {' '.join(str(exc).split()) or 'no answer'}); start "
+                "one with `dask scheduler` and workers with `dask worker ADDRESS`, or drop "
+                "--scheduler to run on this machine") from None
+        with client:
             futures = client.map(_run_task, tasks, pure=False)
             results = []
             for i, fut in enumerate(futures, 1):
