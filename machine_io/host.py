@@ -874,8 +874,22 @@ class Host:
             return self.config.long_timeout
         return self.config.reply_timeout
 
+    def _take_waiting(self) -> None:
+        """Handle every reply already received, before transmitting.
+
+        A duplicated ``ok`` usually arrives right behind the first one; handled
+        now, it finds nothing outstanding and is dropped, instead of being taken
+        for the ``ok`` of the next line (which would let the host run ahead).
+        """
+        while self._reader.pending() or self._port.in_waiting:
+            text = self._readline(0.0)
+            if text is None:
+                return
+            self._handle(parse_reply(text), time.monotonic())
+
     def _pump_once(self, more: Callable[[], bool], allow_new: bool) -> None:
         """Transmit what the window allows, then handle at most a few replies."""
+        self._take_waiting()
         now = time.monotonic()
         if self._deferred is not None:
             number, due = self._deferred
@@ -1063,6 +1077,9 @@ class Host:
         moment (``confirm_timeout``) in which a late ``Resend`` would reopen
         the stream; after it, the stream ends.
         """
+        if self._next < len(self._frames):
+            self._pump_once(lambda: False, allow_new=False)
+            return False
         proven = max(self._acked_reliable, self._received)
         if proven >= self._max_sent or self._barrier_ok:
             return True
