@@ -456,8 +456,14 @@ def plan_orientations(
         # smoothing pass below re-chains the orientations the search chose
         prev_bad = np.concatenate([[previous], angle[:-1]])[bad]
         sc = None if scale is None else scale[bad]
+        # A long move that fails at its four cheapest orientations almost always fails at
+        # its ends (corners, line ends): it goes straight to the split, which searches the
+        # ends at every orientation; short moves are searched at every orientation here.
+        step = options.split_length or max(0.05, nozzle.radius / 4)
+        long_move = np.hypot(*(p1[bad] - p0[bad]).T) > 4 * step
         found, best = _search(prepared_target, pieces, p0[bad], p1[bad], direction[bad],
-                              widths[bad], prev_bad, cands, beta, wtab, per, options, sc)
+                              widths[bad], prev_bad, cands, beta, wtab, per, options, sc,
+                              limit=np.where(long_move, 8, len(cands)))
         angle[bad[found]] = best[found]
         rest = ~found
         if rest.any():
@@ -550,11 +556,12 @@ def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
 
 
 def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, per, options,
-            scale=None):
+            scale=None, limit=None):
     """Vectorised search over many moves: the four cheapest orientations of each, then all.
 
     Cost: width error over ``width_slack`` plus the turn from ``prev`` over 30° (a 30°
-    turn weighs as much as a width error of ``width_slack``).
+    turn weighs as much as a width error of ``width_slack``). ``limit`` (per move) caps
+    how many candidates are tried.
 
     Returns
     -------
@@ -570,8 +577,8 @@ def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, 
     key = werr / max(options.width_slack, 1e-9) + turn / 30.0
     order = np.argsort(key, axis=1, kind="stable")
     ncand = len(cands)
-    for start, stop in ((0, min(4, ncand)), (min(4, ncand), ncand)):
-        todo = np.flatnonzero(~found)
+    for start, stop in ((0, min(4, ncand)), (min(4, ncand), min(8, ncand)), (min(8, ncand), ncand)):
+        todo = np.flatnonzero(~found & (limit > start if limit is not None else True))
         if todo.size == 0 or stop <= start:
             continue
         cols = order[todo, start:stop]  # (t, s)
@@ -595,8 +602,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     longest sub-interval that fits at one of the two cheapest orientations is
     found among intervals trimmed at the start, the end or both by
     geometrically growing lengths; each trimmed-off part is then searched
-    whole at every orientation and, where nothing fits, halved (down to
-    twice ``split_length``) and searched again. A few vectorised searches in all,
+    whole at every orientation and, where nothing fits, cut into pieces of
+    twice ``split_length`` searched again. A few vectorised searches in all,
     whatever the number of moves.
     """
     n = len(a)
@@ -658,9 +665,11 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         for k, (i, ra, rb) in enumerate(todo):
             if found[k]:
                 out[i].append(OrientedPiece(ra, rb, float(best[k])))
-            elif length[i] * (rb - ra) > 2 * step:
-                mid = (ra + rb) / 2
-                nxt += [(i, ra, mid), (i, mid, rb)]
+            elif length[i] * (rb - ra) > 2 * step * 1.000001:
+                # straight to pieces of 2·`step` (smaller pieces fit more easily)
+                m = math.ceil(length[i] * (rb - ra) / (2 * step))
+                t = np.linspace(ra, rb, m + 1)
+                nxt += [(i, float(t[q]), float(t[q + 1])) for q in range(m)]
         todo = nxt
     return [_merge(sorted(o, key=lambda p: p.t0)) for o in out]
 
