@@ -197,28 +197,29 @@ def select_layers(layers: LayerStack, spec: str) -> LayerStack:
                           f"START:STOP:STEP of the {n} layer(s) of {layers.source or 'the input'}"
                           f" (0 is the bottom layer)")
 
-    for item in (t.strip() for t in spec.split(",")):
+    def num(v: str, item: str) -> int:
         try:
-            if ":" in item:
-                parts = [int(v) if v.strip() else None for v in item.split(":")]
-                if len(parts) > 3 or (len(parts) == 3 and parts[2] == 0):
-                    raise bad(f"{item!r} is not a slice")
-                chosen.update(range(n)[slice(*parts)])
-            elif "-" in item.lstrip("-"):
-                a, b = item.lstrip("-").split("-", 1)
-                lo = -int(a) if item.startswith("-") else int(a)
-                hi = int(b)
-                for i in (lo, hi):
-                    if not -n <= i < n:
-                        raise bad(f"layer {i} does not exist")
-                chosen.update(range(lo % n, hi % n + 1))
-            else:
-                i = int(item)
-                if not -n <= i < n:
-                    raise bad(f"layer {i} does not exist")
-                chosen.add(i % n)
+            return int(v)
         except ValueError:
             raise bad(f"{item!r} is not a number, range or slice") from None
+
+    def check(i: int) -> int:
+        if not -n <= i < n:
+            raise bad(f"layer {i} does not exist")
+        return i % n
+
+    for item in (t.strip() for t in spec.split(",")):
+        if ":" in item:
+            parts = [num(v, item) if v.strip() else None for v in item.split(":")]
+            if len(parts) > 3 or (len(parts) == 3 and parts[2] == 0):
+                raise bad(f"{item!r} is not a slice")
+            chosen.update(range(n)[slice(*parts)])
+        elif "-" in item.lstrip("-"):
+            a, b = item.lstrip("-").split("-", 1)
+            lo = check(-num(a, item) if item.startswith("-") else num(a, item))
+            chosen.update(range(lo, check(num(b, item)) + 1))
+        else:
+            chosen.add(check(num(item, item)))
     if not chosen:
         raise bad("no layer selected")
     kept = tuple(replace(layers[i], index=k, meta={**layers[i].meta, "source_index": i})

@@ -53,6 +53,10 @@ def analyze_command(
                                      "core this process may run on."),
     scheduler: str | None = typer.Option(None, "--scheduler",
                                          help="Dask scheduler address to run layers on a cluster."),
+    max_memory: str | None = typer.Option(None, "--max-memory",
+                                          help="Memory a computation may use, e.g. 512M or 8G "
+                                               "(default: half the RAM, at most 16G); larger "
+                                               "work is refused before it starts."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
     """Compute, per layer and per nozzle, the motion restriction P, the as-built layer S and
@@ -61,7 +65,8 @@ def analyze_command(
     from printability.settings import Settings
     from printability.sources import load_layers
 
-    settings = Settings(resolution=resolution, angle_step=angle_step,
+    limits = {} if max_memory is None else {"max_memory": parse_size(max_memory)}
+    settings = Settings(resolution=resolution, angle_step=angle_step, **limits,
                         workers=workers or local_cores(),
                         progress=progress)
     engine = ENGINES.check(engine)
@@ -85,6 +90,25 @@ def analyze_command(
 
         index = write_report(result, out)
         typer.echo(f"report: {index}")
+
+
+_UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+def parse_size(text: str) -> int:
+    """Bytes from a size such as ``512M``, ``8G``, ``1.5G`` or ``1000000`` (binary units)."""
+    from printability.errors import InputError
+
+    t = text.strip().upper().removesuffix("IB").removesuffix("B")
+    unit = t[-1:] if t[-1:] in _UNITS and t[-1:] else ""
+    try:
+        value = float(t[: len(t) - len(unit)])
+    except ValueError:
+        value = -1.0
+    if not value > 0 or value * _UNITS[unit] < 1:
+        raise InputError(f"--max-memory expects a positive size such as 512M or 8G; "
+                         f"found {text!r}")
+    return int(value * _UNITS[unit])
 
 
 def local_cores() -> int:
