@@ -312,9 +312,17 @@ def _segment_meets(kind, a, b, x0, y0, x1, y1, vx, vy, closed):  # pragma: no co
         d3 = (x1 - x0) * (ay - y0) - (y1 - y0) * (ax - x0)
         d4 = (x1 - x0) * (by - y0) - (y1 - y0) * (bx - x0)
         if closed:
-            if d1 * d2 <= 0.0 and d3 * d4 <= 0.0:
-                if not (d1 == 0.0 and d2 == 0.0):  # collinear: treat as touching
+            if d1 == 0.0 and d2 == 0.0:
+                # collinear: they meet only if their extents overlap along the line
+                if abs(bx - ax) >= abs(by - ay):
+                    lo1, hi1 = min(ax, bx), max(ax, bx)
+                    lo2, hi2 = min(x0, x1), max(x0, x1)
+                else:
+                    lo1, hi1 = min(ay, by), max(ay, by)
+                    lo2, hi2 = min(y0, y1), max(y0, y1)
+                if lo2 <= hi1 and lo1 <= hi2:
                     return True
+            elif d1 * d2 <= 0.0 and d3 * d4 <= 0.0:
                 return True
         elif d1 * d2 < 0.0 and d3 * d4 < 0.0:
             return True
@@ -861,8 +869,10 @@ def _empty_result(g, nozzle, machine, space, notes, t0, resolution, angle_step):
                                  samples=np.zeros((0, len(space.values)))),
         components=Components(count=0, geometries=(), angle_ranges=()),
         resolution=resolution, angle_step=angle_step, elapsed=time.perf_counter() - t0,
-        notes=tuple(notes), extra={"samples": space.size, "feasible": 0,
-                                   "joint_names": space.names, "slack": space.slack})
+        notes=tuple(notes), extra={"samples": space.size,
+                                   "feasible": np.zeros(space.shape, dtype=bool),
+                                   "joint_names": space.names, "joint_values": space.values,
+                                   "slack": space.slack})
 
 
 def _chunks(space: SampleSpace, machine: Machine, nozzle: Nozzle, g: BaseGeometry):

@@ -260,3 +260,48 @@ def test_sample_space_slack_bounds_the_motion_between_samples():
         qa = pts @ np.array([[np.cos(ra), np.sin(ra)], [-np.sin(ra), np.cos(ra)]]) + ta
         qb = pts @ np.array([[np.cos(rb), np.sin(rb)], [-np.sin(rb), np.cos(rb)]]) + tb
         assert np.hypot(*(qa - qb).T).max() <= space.slack + 1e-12
+
+
+# ------------------------------------------------------------------ the containment test
+
+
+_NOZZLES = ["circle:d=0.5", "ellipse:major=0.9,minor=0.3,angle=25", "rect:w=0.8,h=0.3,rot=10",
+            "polygon:pts=0 0;0.8 0;0.8 0.25;0.25 0.25;0.25 0.7;0 0.7",
+            "circle:d=0.3,x=-0.5+ellipse:major=0.5,minor=0.2,x=0.5"]
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(spec=st.sampled_from(_NOZZLES),
+       boxes=st.lists(st.tuples(st.floats(0, 3), st.floats(0, 3), st.floats(0.5, 2.5),
+                                st.floats(0.5, 2.5)), min_size=1, max_size=3),
+       hole=st.tuples(st.floats(0.5, 3.5), st.floats(0.5, 3.5), st.floats(0.1, 0.6)),
+       turn=st.booleans())
+def test_every_sample_is_decided_like_shapely(spec, boxes, hole, turn):
+    """Feasible samples have the nozzle inside G, infeasible ones do not (up to the
+    polygons' own approximation of curved orifices): random regions with holes and
+    random nozzles, every grid sample checked against shapely placements."""
+    g = shapely.union_all([box(x, y, x + w, y + h) for x, y, w, h in boxes])
+    g = g.difference(Point(hole[0], hole[1]).buffer(hole[2], quad_segs=8))
+    if g.area < 0.5:
+        return
+    g = as_region(g)
+    machine = "ttr:step=45" if turn else "xy"
+    res = sampled(g, spec, machine, resolution=0.1)
+    noz = res.nozzle
+    curved = [f.a for f in noz.footprints if f.kind in ("circle", "ellipse")]
+    err = max(curved, default=0.0) * (1 / math.cos(math.pi / 128) - 1) + 1e-7
+    grown, shrunk = g.buffer(err), g.buffer(-err)
+    feas = res.extra["feasible"]
+    vals = res.extra["joint_values"]
+    rng = np.random.default_rng(0)
+    flat = rng.choice(feas.size, min(300, feas.size), replace=False)
+    idx = np.unravel_index(flat, feas.shape)
+    u = np.column_stack([v[i] for v, i in zip(vals, idx, strict=True)])
+    for k in range(len(u)):
+        a = float(u[k, 2]) if u.shape[1] > 2 else 0.0
+        if feas[tuple(i[k] for i in idx)]:
+            placed = shapely.affinity.translate(noz.outline(a, mode="outer"), *u[k, :2])
+            assert grown.contains(placed), (spec, u[k])
+        else:
+            placed = shapely.affinity.translate(noz.outline(a, mode="inner"), *u[k, :2])
+            assert not shrunk.contains_properly(placed) or shrunk.is_empty, (spec, u[k])
