@@ -252,3 +252,25 @@ def test_result_is_empty_geometry_when_nothing_fits():
     res = reference(rectangle(1.0, 0.3), "circle:d=0.28,x=0.5", resolution=0.02)
     assert isinstance(res.as_built, MultiPolygon)
     assert res.lost_area == pytest.approx(res.target_area)
+
+
+_NOZZLES = ["circle:d=0.5", "ellipse:major=0.9,minor=0.3,angle=25", "rect:w=0.8,h=0.3,rot=10",
+            "polygon:pts=0 0;0.8 0;0.8 0.25;0.25 0.25;0.25 0.7;0 0.7",
+            "circle:d=0.3,x=-0.5+ellipse:major=0.5,minor=0.2,x=0.5"]
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(spec=st.sampled_from(_NOZZLES),
+       boxes=st.lists(st.tuples(st.floats(0, 3), st.floats(0, 3), st.floats(0.5, 2.5),
+                                st.floats(0.5, 2.5)), min_size=1, max_size=3),
+       hole=st.tuples(st.floats(0.5, 3.5), st.floats(0.5, 3.5), st.floats(0.1, 0.6)))
+def test_random_regions_keep_the_promise_and_agree_with_exact(spec, boxes, hole):
+    g = shapely.union_all([box(x, y, x + w, y + h) for x, y, w, h in boxes])
+    g = g.difference(shapely.Point(hole[0], hole[1]).buffer(hole[2], quad_segs=8))
+    if g.area < 0.5:
+        return
+    g = as_region(g)
+    res = reference(g, spec, resolution=0.04)
+    assert_mmc_promise(res, n_points=150)
+    ex = compute_mmc(g, spec, "xy", engine="exact")
+    _overlap(ex, res)
