@@ -21,8 +21,12 @@ __all__ = ["app", "main"]
 
 # Subcommand modules, in help order. Each defines register(app: typer.Typer).
 SUBCOMMANDS: tuple[str, ...] = (
+    "printability.cli.analyze",
+    "printability.cli.stream",
+    "printability.cli.demo",
     "printability.cli.simulate",
     "printability.cli.postprocess",
+    "printability.cli.generate",
 )
 
 app = typer.Typer(

@@ -1,0 +1,376 @@
+"""The whole pipeline on bundled data, against the built-in simulator (``printability demo``).
+
+1. **Layers** — the bundled part, a comb whose fins are 0.5 to 2.5 mm wide
+   (``printability/data/demo/comb.stl``, 26 × 12 × 0.8 mm), sliced at 0.2 mm
+   and moved to the middle of the machine's bed.
+2. **Analysis and ranking** — :func:`printability.analysis.analyze` computes,
+   per layer and per candidate nozzle, the motion restriction P, the as-built
+   layer S and what is lost, and ranks the nozzles.
+3. **G-code with the rotary axis** — :func:`printability.generate.generate_gcode`
+   plans walls and infill for the best nozzle and turns it (C axis) so that it
+   never lays material outside the part.
+4. **Streaming** — :class:`machine_io.Host` sends the file over a pty to the
+   virtual printer (:mod:`simulators`, Marlin protocol with ADVANCED_OK),
+   optionally with injected faults, and checks that the printer executed
+   every command once, in order.
+5. **Report** — per layer: the target G, the predicted as-built S and what the
+   simulator actually deposited D, with D's area outside G (the MMC promise:
+   zero) and how much of S it covers; a JSON file, an HTML page with a
+   figure, the G-code, the simulator's record and the serial transcript, each
+   written atomically into the output folder.
+
+Everything used is installed by ``pip install -e '.[all]'`` (matplotlib for
+the figure comes with the ``report`` extra; without it the page has no figure).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import html
+import io
+import json
+import os
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import shapely
+import shapely.affinity
+
+from printability.errors import PrintabilityOSError, PrinterError
+from printability.layers import LayerStack
+
+__all__ = ["DEFAULT_NOZZLES", "DEMO_PART", "DemoLayer", "DemoResult", "run_demo"]
+
+DEMO_PART = Path(__file__).parent / "data" / "demo" / "comb.stl"
+"""The bundled part: a comb with fins 0.5, 0.7, 0.9, 1.2, 1.6, 2.0 and 2.5 mm wide."""
+
+DEFAULT_NOZZLES: tuple[str, ...] = ("circle:d=0.8", "ellipse:major=0.8,minor=0.4")
+"""Two nozzles of the same length: round, or elliptical and turned by the rotary axis."""
+
+
+@dataclass(frozen=True)
+class DemoLayer:
+    """Target, prediction and deposition of one layer (areas in mm²).
+
+    Attributes
+    ----------
+    z
+        Layer top, mm.
+    target_area
+        λ(G).
+    predicted_area
+        λ(S) predicted by the analysis for the chosen nozzle (its best estimate).
+    deposited_area
+        λ(D), what the simulator deposited.
+    outside_area
+        λ(D \\ G) beyond a 1 µm tolerance: material outside the part (0 keeps the MMC promise).
+    covered_target
+        λ(D ∩ G) / λ(G).
+    covered_prediction
+        λ(D ∩ S) / λ(S) with the engine's S geometry (for the raster engine its inner
+        estimate S_inner ⊆ S): how much of the predicted layer was actually printed.
+    """
+
+    z: float
+    target_area: float
+    predicted_area: float
+    deposited_area: float
+    outside_area: float
+    covered_target: float
+    covered_prediction: float
+
+    def to_json(self) -> dict[str, float]:
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class DemoResult:
+    """What the demo did; the files are in ``out_dir``."""
+
+    out_dir: Path
+    files: tuple[Path, ...]
+    ranking: tuple[dict[str, Any], ...]
+    nozzle: str
+    machine: str
+    gcode_lines: int
+    stream: Any  # machine_io.StreamReport
+    log_matches: bool
+    layers: tuple[DemoLayer, ...]
+    violations: int
+    elapsed: float
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def report(self) -> Path:
+        return self.out_dir / "report.html"
+
+
+def _write_atomic(path: Path, data: bytes | str) -> Path:
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(raw)
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError, UnboundLocalError):
+            os.unlink(tmp)
+        raise PrintabilityOSError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    return path
+
+
+def _centered(layers: LayerStack, bed: tuple[float, float, float, float] | None) -> LayerStack:
+    """The layers moved so the part sits in the middle of the bed (unchanged without a bed)."""
+    if bed is None:
+        return layers
+    x0, y0, x1, y1 = shapely.union_all([lay.region for lay in layers]).bounds
+    dx = (bed[0] + bed[1]) / 2 - (x0 + x1) / 2
+    dy = (bed[2] + bed[3]) / 2 - (y0 + y1) / 2
+    moved = tuple(replace(lay, region=shapely.affinity.translate(lay.region, dx, dy))
+                  for lay in layers)
+    return LayerStack(moved, source=layers.source, units=layers.units,
+                      meta={**layers.meta, "moved_by": (dx, dy)})
+
+
+def run_demo(
+    out_dir: str | os.PathLike[str],
+    *,
+    part: str | os.PathLike[str] | None = None,
+    nozzles: Sequence[str] = DEFAULT_NOZZLES,
+    machine: str = "ttr",
+    layer_height: float = 0.2,
+    faults: str = "",
+    seed: int = 0,
+    on_step: Callable[[str], None] | None = None,
+) -> DemoResult:
+    """Run the pipeline end to end and write the report into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir
+        Folder for the report (created; files in it are replaced atomically).
+    part
+        A part to use instead of the bundled comb (any input ``analyze`` reads).
+    nozzles
+        Candidate nozzle SPECs; the best ranked is printed.
+    machine
+        Machine SPEC or profile (the simulator gets the same).
+    layer_height
+        Slicing of mesh inputs, mm.
+    faults, seed
+        Faults to inject into the simulated link (e.g. ``"corrupt~0.01,drop-ok~0.005"``).
+    on_step
+        Called with a one-line message as each step starts.
+
+    Returns
+    -------
+    DemoResult
+
+    Raises
+    ------
+    PrinterError
+        The simulated printer did not execute exactly the file.
+    InputError, PrintabilityOSError
+        Bad options, unreadable part, unwritable folder.
+    """
+    from machine_io import Host, HostConfig, Transcript, parse_program
+    from printability.analysis import analyze
+    from printability.generate import GenerateOptions, generate_gcode
+    from printability.nozzle import parse_nozzle
+    from printability.sources import load_layers
+    from simulators import make_config, write_record
+    from simulators.config import resolve_machine
+    from simulators.faults import FaultPlan
+    from simulators.transports import Link, PtyServer
+
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    try:  # fail before the work, not after it
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PrintabilityOSError(f"{out}: cannot create the report folder "
+                                  f"({exc.strerror or exc})") from None
+    step = on_step or (lambda message: None)
+    # Options are checked before the long steps start.
+    for spec in nozzles:
+        parse_nozzle(spec)
+    FaultPlan.parse(faults, seed=seed)
+    source = Path(part) if part is not None else DEMO_PART
+    mach = resolve_machine(machine)
+    step(f"layers: {source.name}")
+    layers = _centered(load_layers(source, layer_height=layer_height), mach.bed)
+
+    step(f"analysis: {len(layers)} layers × {len(nozzles)} nozzles on {mach.name}")
+    analysis = analyze(layers, list(nozzles), mach, keep_results=True)
+    best = analysis.nozzles[0]
+    ranking = tuple({"rank": n.rank, "nozzle": n.nozzle.spec, "lost_area": n.lost_area,
+                     "lost_fraction": n.lost_fraction, "as_built_area": n.as_built_area,
+                     "target_area": n.target_area} for n in analysis.nozzles)
+
+    step(f"G-code: {best.nozzle.spec} (ranked first)")
+    text, gen = generate_gcode(layers, best.nozzle, mach, options=GenerateOptions(center=False))
+    files = [_write_atomic(out / "part.gcode", text)]
+    program = parse_program(text.encode(), source=str(out / "part.gcode"))
+
+    step(f"streaming {len(program)} commands to the simulator"
+         + (f" with faults {faults}" if faults else ""))
+    link = Link(make_config(profile="marlin-advanced", machine=mach, nozzle=best.nozzle,
+                            clock="sim", faults=faults, seed=seed, target=layers))
+    server = PtyServer(link)
+    transcript_path = out / "serial.log"
+    with server, Host(server.path, config=HostConfig(reply_timeout=1.0, confirm_timeout=0.3),
+                      transcript=Transcript(transcript_path)) as host:
+        host.connect()
+        report = host.stream(program)
+    files.append(transcript_path)
+    executed = [t for _, t in link.firmware.executed
+                if not t.startswith(("M110", "M115", "M114"))]
+    expected = list(program.commands)
+    for at, cmds in reversed(report.injected):
+        expected[at:at] = cmds
+    log_matches = executed == expected
+    if not log_matches:
+        raise PrinterError("the simulator did not execute exactly the streamed file (see "
+                           f"{transcript_path}); the host lost or repeated a command")
+    record = link.firmware.record()
+    files.append(write_record(record, out / "record.json"))
+
+    step("report")
+    rows = _compare(layers, best, record)
+    result = DemoResult(out, (), ranking, best.nozzle.spec, mach.name, len(program), report,
+                        log_matches, tuple(rows), len(record.violations),
+                        time.perf_counter() - t0,
+                        (f"generate: {gen.rotations} rotations, {gen.dropped_length:.2f} mm of "
+                         f"path no orientation can print",))
+    doc = _json(result, analysis, record)
+    files.append(_write_atomic(out / "report.json", json.dumps(doc, indent=1) + "\n"))
+    png = _figure(layers, best, record)
+    if png is not None:
+        files.append(_write_atomic(out / "layers.png", png))
+    files.append(_write_atomic(out / "report.html", _html(result, png is not None)))
+    return replace(result, files=tuple(files), elapsed=time.perf_counter() - t0)
+
+
+def _layer_at(record: Any, z: float, tol: float) -> Any:
+    near = [lay for lay in record.layers if abs(lay.z - z) <= tol]
+    return min(near, key=lambda lay: abs(lay.z - z)) if near else None
+
+
+def _compare(layers: LayerStack, best: Any, record: Any) -> list[DemoLayer]:
+    rows = []
+    tol = 0.5 * min((lay.height for lay in layers if lay.height > 0), default=1.0)
+    for lay, outcome in zip(layers, best.layers, strict=True):
+        g = lay.region
+        s = outcome.result.as_built if outcome.result is not None else None
+        dep = _layer_at(record, lay.z, tol)
+        d = dep.region if dep is not None else shapely.MultiPolygon()
+        rows.append(DemoLayer(
+            z=lay.z, target_area=float(g.area), predicted_area=float(outcome.as_built_area),
+            deposited_area=float(d.area),
+            outside_area=float(d.difference(g.buffer(1e-3)).area),
+            covered_target=float(d.intersection(g).area / g.area) if g.area else 0.0,
+            covered_prediction=(float(d.intersection(s).area / s.area)
+                                if s is not None and s.area else 0.0)))
+    return rows
+
+
+def _json(result: DemoResult, analysis: Any, record: Any) -> dict[str, Any]:
+    return {
+        "format": "printability-demo", "nozzle": result.nozzle, "machine": result.machine,
+        "ranking": list(result.ranking), "analysis": analysis.to_json(),
+        "gcode_lines": result.gcode_lines, "stream": result.stream.to_json(),
+        "simulator_log_equals_file": result.log_matches,
+        "layers": [row.to_json() for row in result.layers],
+        "violations": result.violations, "notes": list(result.notes),
+        "simulator": record.stats,
+    }
+
+
+def _figure(layers: LayerStack, best: Any, record: Any) -> bytes | None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    from printability.geometry import polygons_of
+
+    n = len(layers)
+    fig, axes = plt.subplots(n, 1, figsize=(9, 2.6 * n), squeeze=False)
+    tol = 0.5 * min((lay.height for lay in layers if lay.height > 0), default=1.0)
+
+    def draw(ax, geom, **kw) -> None:
+        for poly in polygons_of(geom):
+            for ring in (poly.exterior, *poly.interiors):
+                x, y = ring.xy
+                ax.fill(x, y, **kw) if kw.get("fill", True) else ax.plot(x, y, **kw)
+
+    for ax, lay, outcome in zip(axes[:, 0], layers, best.layers, strict=True):
+        draw(ax, lay.region, color="0.85", label="target G")
+        dep = _layer_at(record, lay.z, tol)
+        if dep is not None:
+            draw(ax, dep.region, color="tab:orange", alpha=0.6, label="deposited D")
+            outside = dep.region.difference(lay.region.buffer(1e-3))
+            if not outside.is_empty:
+                draw(ax, outside, color="red", label="outside G")
+        s = outcome.result.as_built if outcome.result is not None else None
+        if s is not None:
+            for poly in polygons_of(s):
+                for ring in (poly.exterior, *poly.interiors):
+                    x, y = ring.xy
+                    ax.plot(x, y, color="tab:blue", lw=0.8)
+        ax.plot([], [], color="tab:blue", lw=0.8, label="predicted S")
+        ax.set_title(f"z = {lay.z:.2f} mm", fontsize=9)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=7)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    uniq = dict(zip(labels, handles, strict=False))
+    fig.legend(uniq.values(), uniq.keys(), loc="upper right", fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _html(result: DemoResult, figure: bool) -> str:
+    e = html.escape
+    s = result.stream
+    rank_rows = "".join(
+        f"<tr><td>{r['rank']}</td><td>{e(r['nozzle'])}</td><td>{r['lost_area']:.3f}</td>"
+        f"<td>{100 * r['lost_fraction']:.2f} %</td></tr>" for r in result.ranking)
+    layer_rows = "".join(
+        f"<tr><td>{r.z:.2f}</td><td>{r.target_area:.2f}</td><td>{r.predicted_area:.2f}</td>"
+        f"<td>{r.deposited_area:.2f}</td><td>{r.outside_area:.4f}</td>"
+        f"<td>{100 * r.covered_target:.1f} %</td><td>{100 * r.covered_prediction:.1f} %</td></tr>"
+        for r in result.layers)
+    img = '<p><img src="layers.png" alt="layers"></p>' if figure else (
+        "<p>(no figure: matplotlib is not installed — pip install 'printability[report]')</p>")
+    return f"""<!DOCTYPE html>
+<html><head><meta charset="utf-8"><title>printability demo</title>
+<style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:.2em .6em;text-align:right}}
+</style></head><body>
+<h1>printability demo: {e(result.nozzle)} on {e(result.machine)}</h1>
+<h2>1–2. Nozzle ranking (lost area over all layers)</h2>
+<table><tr><th>rank</th><th>nozzle</th><th>lost mm²</th><th>lost</th></tr>{rank_rows}</table>
+<h2>3. G-code</h2><p>{result.gcode_lines} commands with the rotary axis:
+<a href="part.gcode">part.gcode</a>. {' '.join(e(n) for n in result.notes)}</p>
+<h2>4. Streamed to the simulator</h2>
+<p>{s.acknowledged} of {s.total} commands acknowledged ({e(s.mode)}), {s.resends} resends
+(ratio {100 * s.resend_ratio:.2f} %), {s.timeouts} timeouts, {s.reconnects} reconnects.
+The simulator executed exactly the file: <b>{'yes' if result.log_matches else 'NO'}</b>.
+Transcript: <a href="serial.log">serial.log</a>; record: <a href="record.json">record.json</a>.</p>
+<h2>5. Target, prediction and deposition (mm²)</h2>
+<table><tr><th>z mm</th><th>target G</th><th>predicted S</th><th>deposited D</th>
+<th>D outside G</th><th>D covers G</th><th>D covers S</th></tr>{layer_rows}</table>
+<p>MMC violations reported by the simulator: {result.violations}.</p>
+{img}
+</body></html>
+"""
