@@ -6,6 +6,7 @@ tests (test_host_simulator.py) check the same promises against the real thing.
 
 from __future__ import annotations
 
+import json
 import threading
 
 import pytest
@@ -237,3 +238,17 @@ def test_config_is_validated():
         HostConfig(mode="fast")
     with pytest.raises(InputError, match="reply_timeout"):
         HostConfig(reply_timeout=-1)
+
+
+def test_resume_file_names_the_next_command(tmp_path):
+    p = program(200)
+    state = tmp_path / "resume.json"
+    with FakeMarlin(faults={120: ["silent"]}) as fw, \
+            Host(fw.path, config=HostConfig(max_timeouts=1, **FAST)) as host:
+        host.connect()
+        with pytest.raises(PrinterError):
+            host.stream(p, resume_file=state)
+    doc = json.loads(state.read_text())
+    assert doc["next_command"] == 119 and doc["total"] == len(p)
+    assert doc["next_line"] == p.source_lines[119] == 121
+    assert printed(fw) == list(p.commands[:119])
