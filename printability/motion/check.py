@@ -139,25 +139,28 @@ def check_deposition(
         rep = np.repeat(np.arange(len(c)), ns)
         first = np.cumsum(ns) - ns
         t = (np.arange(rep.size) - first[rep]) / np.maximum(ns[rep] - 1, 1)
-        px = c["x0"][rep] + t * (c["x1"] - c["x0"])[rep]
-        py = c["y0"][rep] + t * (c["y1"] - c["y0"])[rep]
-        ang = np.deg2rad(c["a0"][rep] + t * (c["a1"] - c["a0"])[rep] + 0.0)
-        cs, sn = np.cos(ang)[:, None], np.sin(ang)[:, None]
-        vx = px[:, None] + cs * verts[None, :, 0] - sn * verts[None, :, 1]
-        vy = py[:, None] + sn * verts[None, :, 0] + cs * verts[None, :, 1]
-        pts = shapely.points(vx.ravel(), vy.ravel())
         shapely.prepare(tgt)
-        inside = shapely.covers(tgt, pts)
         worst = 0.0
-        if not inside.all():
-            worst = float(shapely.distance(tgt, pts[~inside]).max())
-        union = None
-        if keep_union:
-            ring = np.stack([vx, vy], axis=-1)
-            ring = np.concatenate([ring, ring[:, :1]], axis=1)
-            polys = shapely.polygons(ring)
-            # consecutive placements along a chord: their hulls cover the sweep
-            union = shapely.union_all(polys)
+        unions = []
+        # in batches, so that memory stays bounded (a point object per outline vertex)
+        batch = max(1, 200_000 // len(verts))
+        for lo in range(0, rep.size, batch):
+            r, tt = rep[lo:lo + batch], t[lo:lo + batch]
+            px = c["x0"][r] + tt * (c["x1"] - c["x0"])[r]
+            py = c["y0"][r] + tt * (c["y1"] - c["y0"])[r]
+            ang = np.deg2rad(c["a0"][r] + tt * (c["a1"] - c["a0"])[r])
+            cs, sn = np.cos(ang)[:, None], np.sin(ang)[:, None]
+            vx = px[:, None] + cs * verts[None, :, 0] - sn * verts[None, :, 1]
+            vy = py[:, None] + sn * verts[None, :, 0] + cs * verts[None, :, 1]
+            pts = shapely.points(vx.ravel(), vy.ravel())
+            inside = shapely.covers(tgt, pts)
+            if not inside.all():
+                worst = max(worst, float(shapely.distance(tgt, pts[~inside]).max()))
+            if keep_union:
+                ring = np.stack([vx, vy], axis=-1)
+                ring = np.concatenate([ring, ring[:, :1]], axis=1)
+                unions.append(shapely.union_all(shapely.polygons(ring)))
+        union = shapely.union_all(unions) if keep_union else None
         out.append(LayerDeposition(int(li), len(c), int(rep.size),
                                    worst if math.isfinite(worst) else math.inf, union))
     return out
