@@ -26,13 +26,19 @@ needs no change is kept byte for byte; the changes are:
   summary) is inserted before the first command; it also marks the file so
   it is never processed twice.
 
-The layer target G is rebuilt from the slicer's own part extrusions
-(supports, skirt, brim, wipe tower, custom/purge moves and ironing excluded):
-the union of every chord swept by a disk of half its planned width (the
-``;WIDTH:`` comments, or the width inverted from E with the rounded-rectangle
-model). The outer perimeter's centre line is therefore exactly w/2 from ∂G;
-``tolerance`` (default 1 µm) absorbs the rounding of coordinates and of the
-polygonal arcs. Those non-part moves are left as they are.
+The layer target G is rebuilt from the slicer's own part extrusions exactly
+as ``printability analyze`` does (:func:`printability.sources.gcode.layer_regions`:
+supports, skirt, brim, wipe tower, custom/purge moves and ironing excluded;
+every chord swept by a disk of half its planned width, the ``;WIDTH:``
+comments or the width inverted from E). The outer perimeter's centre line is
+therefore exactly w/2 from ∂G; ``tolerance`` (default 1 µm, minus the
+rounding of the coordinates written) absorbs the rounding of coordinates and
+of the polygonal arcs. Non-part moves are left as they are.
+
+A round nozzle no larger than the one the file was sliced for (the slicer's
+``nozzle_diameter``) lays the slicer's own beads, each inside G by
+construction: such a file only gets the comment block. A larger round nozzle,
+or any other shape, is checked move by move with its whole orifice.
 """
 
 from __future__ import annotations
