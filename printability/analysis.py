@@ -13,6 +13,8 @@ processes on this machine, or a Dask cluster when ``scheduler`` names one
 
 from __future__ import annotations
 
+import multiprocessing
+import multiprocessing.context
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -328,6 +330,16 @@ def _rank(per_nozzle: list[NozzleAnalysis], machine: Machine) -> list[NozzleAnal
     return [replace(n, rank=i + 1) for i, n in enumerate(ordered)]
 
 
+def _process_context() -> multiprocessing.context.BaseContext:
+    """Fork server where there is one: the caller may have threads (a progress bar's
+    refresher, a Dask client) that a plain fork would copy mid-lock."""
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["printability.analysis", "printability.mmc.exact"])
+        return ctx
+    return multiprocessing.get_context()
+
+
 def _map(tasks: list[tuple], *, settings: Settings, scheduler: str | None,
          on_progress: Callable[[int, int], None] | None) -> Iterable[LayerOutcome]:
     total = len(tasks)
@@ -353,7 +365,8 @@ def _map(tasks: list[tuple], *, settings: Settings, scheduler: str | None,
                     on_progress(i, total)
             return results
     if settings.workers > 1 and total > 1:
-        with ProcessPoolExecutor(max_workers=min(settings.workers, total)) as pool:
+        with ProcessPoolExecutor(max_workers=min(settings.workers, total),
+                                 mp_context=_process_context()) as pool:
             results = []
             for i, out in enumerate(pool.map(_run_task, tasks), 1):
                 results.append(out)
