@@ -145,7 +145,7 @@ def _fig_layer(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> bytes:
             ax.plot([], [], color=_COLORS["as_built"], lw=8, label="as built (S, pixels)")
     _frame(ax, target)
     ax.set_title(title)
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="best", fontsize=8, framealpha=0.8)
     data = _png(fig)
     plt.close(fig)
     return data
