@@ -36,6 +36,7 @@ from shapely.geometry.base import BaseGeometry
 from printability.errors import InputError
 from printability.geometry import polygons_of
 from printability.machine import Machine
+from printability.motion.fastfit import covers_rings
 from printability.nozzle import Nozzle
 
 __all__ = [
@@ -48,6 +49,7 @@ __all__ = [
     "fits",
     "plan_orientations",
     "swept_footprints",
+    "swept_rings",
     "width_table",
 ]
 
@@ -216,6 +218,24 @@ def swept_footprints(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: 
     -------
     ndarray of shapely Polygons, shape (n,).
     """
+    return shapely.polygons(swept_rings(piece, p0, p1, angle, angle_end=angle_end, scale=scale,
+                                        directions=directions))
+
+
+def swept_rings(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.ndarray,
+                *, angle_end: np.ndarray | None = None, scale: np.ndarray | None = None,
+                directions: int = 64) -> np.ndarray:
+    """The closed rings of :func:`swept_footprints` as coordinates, shape (n, directions + 1, 2)."""
+    return _swept(piece, p0, p1, angle, angle_end=angle_end, scale=scale,
+                  directions=directions)[0]
+
+
+def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64):
+    """Rings and their half-planes: ring (n, d + 1, 2), and u = (cu, su), h of shape (n, d).
+
+    The swept set lies in every half-plane ``cu·x + su·y ≤ h``; the ring's vertices are
+    where adjacent boundary lines cross.
+    """
     n = len(p0)
     # The directions are turned so that two of them are normal to the move:
     # the long sides of the swept set are then exact, not cut by a spike.
@@ -250,13 +270,18 @@ def swept_footprints(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: 
     ring[:, :-1, 0] = (hh[:, :-1] * ss[:, 1:] - hh[:, 1:] * ss[:, :-1]) / det
     ring[:, :-1, 1] = (cc[:, :-1] * hh[:, 1:] - cc[:, 1:] * hh[:, :-1]) / det
     ring[:, -1] = ring[:, 0]
-    return shapely.polygons(ring)
+    return ring, cu, su, h
 
 
 def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1: np.ndarray,
          angle: np.ndarray, *, angle_end: np.ndarray | None = None,
-         scale: np.ndarray | None = None) -> np.ndarray:
+         scale: np.ndarray | None = None, fast: bool = True) -> np.ndarray:
     """Whether each move's swept footprint lies inside ``target`` (prepared, grown).
+
+    ``fast`` decides what it can with the exact tests of
+    :func:`printability.motion.fastfit.covers_rings` and leaves only the rest
+    to ``shapely.covers``; ``fast=False`` tests every footprint with
+    ``shapely.covers`` (the reference the fast path must agree with).
 
     Returns a boolean array of shape (n,).
     """
@@ -268,10 +293,13 @@ def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1
         idx = np.flatnonzero(ok)
         if idx.size == 0:
             break
-        polys = swept_footprints(piece, p0[idx], p1[idx], np.asarray(angle)[idx],
-                                 angle_end=None if angle_end is None else angle_end[idx],
-                                 scale=None if scale is None else scale[idx])
-        ok[idx] = shapely.covers(target, polys)
+        rings, cu, su, h = _swept(piece, p0[idx], p1[idx], np.asarray(angle)[idx],
+                                  angle_end=None if angle_end is None else angle_end[idx],
+                                  scale=None if scale is None else scale[idx])
+        if fast:
+            ok[idx] = covers_rings(target, rings, cu, su, h)
+        else:
+            ok[idx] = shapely.covers(target, shapely.polygons(rings))
     return ok
 
 

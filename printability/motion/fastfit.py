@@ -1,0 +1,227 @@
+"""Exact shortcut for "does this swept footprint lie inside the target?".
+
+:func:`printability.motion.orientation.fits` asks ``shapely.covers(G, P)``
+for hundreds of thousands of convex swept polygons P (64 vertices each) per
+part. GEOS answers each with a general overlay-style test (noding P's ring
+against ∂G); for a convex P known as an intersection of half-planes
+``u_j·x ≤ h_j`` a far cheaper test is exact: clip each nearby edge of ∂G
+against those half-planes (Liang–Barsky, one pass over the 64 half-planes).
+
+For one footprint P (the polygon of the ring ``shapely.covers`` would be
+given; its vertices lie within rounding, δ ≪ ε = 1e-9 mm, of the half-plane
+polygon):
+
+* **Reject** when one vertex of P lies strictly outside G
+  (``shapely.intersects_xy`` false), or when some edge of ∂G has a piece of
+  positive length inside every half-plane shrunk by ε: that piece is a point
+  of ∂G in the interior of P, and every neighbourhood of a boundary point
+  holds points outside G, so P ⊄ G.
+* **Accept** when a vertex of P lies in G and no edge of ∂G meets the
+  half-planes grown by ε (which contain P): P is connected, holds a point of
+  G and meets no point of ∂G, so it lies in the interior of G.
+* Otherwise (∂G grazes P within ε) ``shapely.covers`` decides.
+
+Each decision is therefore the one ``shapely.covers`` gives; only the time
+changes. Edges near P are found with a uniform grid over ∂G's edges, built
+once per layer target.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+__all__ = ["EPS", "boundary_grid", "covers_rings"]
+
+EPS = 1e-9
+"""Margin (mm) of the half-plane tests against rounding of the ring's vertices."""
+
+_cache: list[tuple[BaseGeometry, tuple]] = []
+
+
+def boundary_grid(target: BaseGeometry) -> tuple:
+    """Edges of ∂G binned on a uniform grid (CSR), cached for the last few targets.
+
+    Returns
+    -------
+    tuple
+        ``(ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny)``: edge
+        ends, for cell ``c = iy·nx + ix`` the edges ``items[start[c]:start[c+1]]``,
+        the grid origin, cell size and shape.
+    """
+    for g, grid in _cache:
+        if g is target:
+            return grid
+    parts = shapely.get_parts(shapely.boundary(target))
+    coords, which = shapely.get_coordinates(parts, return_index=True)
+    same = which[1:] == which[:-1]
+    a = coords[:-1][same]
+    b = coords[1:][same]
+    ex0, ey0, ex1, ey1 = (np.ascontiguousarray(v) for v in (a[:, 0], a[:, 1], b[:, 0], b[:, 1]))
+    if len(ex0):
+        x0, y0 = float(min(ex0.min(), ex1.min())), float(min(ey0.min(), ey1.min()))
+        w = float(max(ex0.max(), ex1.max())) - x0
+        hgt = float(max(ey0.max(), ey1.max())) - y0
+    else:
+        x0 = y0 = w = hgt = 0.0
+    # ~1 mm cells (a footprint spans a few), at most ~250 k of them
+    cell = max(1.0, math.sqrt(max(w * hgt, 1e-12) / 250_000.0))
+    nx = int(w // cell) + 1
+    ny = int(hgt // cell) + 1
+    start, items = _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny)
+    grid = (ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny)
+    _cache.insert(0, (target, grid))
+    del _cache[4:]
+    return grid
+
+
+@numba.njit(cache=True)
+def _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny):  # pragma: no cover
+    """CSR of the grid cells each edge's bounding box overlaps (two passes: count, fill)."""
+    count = np.zeros(nx * ny + 1, np.int64)
+    for pass_ in range(2):
+        if pass_ == 1:
+            for c in range(nx * ny):
+                count[c + 1] += count[c]
+            items = np.empty(count[nx * ny], np.int64)
+            fill = count[:-1].copy()
+        for e in range(len(ex0)):
+            ix0 = min(max(int((min(ex0[e], ex1[e]) - x0) // cell), 0), nx - 1)
+            ix1 = min(max(int((max(ex0[e], ex1[e]) - x0) // cell), 0), nx - 1)
+            iy0 = min(max(int((min(ey0[e], ey1[e]) - y0) // cell), 0), ny - 1)
+            iy1 = min(max(int((max(ey0[e], ey1[e]) - y0) // cell), 0), ny - 1)
+            for iy in range(iy0, iy1 + 1):
+                for ix in range(ix0, ix1 + 1):
+                    c = iy * nx + ix
+                    if pass_ == 0:
+                        count[c + 1] += 1
+                    else:
+                        items[fill[c]] = e
+                        fill[c] += 1
+    return count, items
+
+
+@numba.njit(cache=True)
+def _clip(ax, ay, bx, by, cu, su, h, off):  # pragma: no cover
+    """Fraction of [a, b] inside all half-planes ``cu·x + su·y ≤ h + off`` (Liang–Barsky)."""
+    t0 = 0.0
+    t1 = 1.0
+    dx = bx - ax
+    dy = by - ay
+    for j in range(len(h)):
+        p = cu[j] * dx + su[j] * dy
+        q = h[j] + off - (cu[j] * ax + su[j] * ay)
+        if p == 0.0:
+            if q < 0.0:
+                return -1.0
+        elif p > 0.0:
+            t = q / p
+            if t < t1:
+                t1 = t
+        else:
+            t = q / p
+            if t > t0:
+                t0 = t
+        if t1 < t0:
+            return -1.0
+    return t1 - t0
+
+
+@numba.njit(cache=True)
+def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny,
+            todo, eps, out):  # pragma: no cover
+    """Per ring of ``todo``: 1 inside, 0 not inside, -1 undecided (∂G within ``eps``).
+
+    A hand-written kernel because the candidates are few (a grid cell or two of
+    ∂G per footprint) and the test per edge is 64 multiply-adds: GEOS's general
+    covers builds a noded graph of both boundaries for every footprint.
+    """
+    k = rings.shape[1] - 1
+    for m in range(len(todo)):
+        i = todo[m]
+        bx0 = rings[i, 0, 0]
+        bx1 = bx0
+        by0 = rings[i, 0, 1]
+        by1 = by0
+        for v in range(1, k):
+            x = rings[i, v, 0]
+            y = rings[i, v, 1]
+            bx0 = min(bx0, x)
+            bx1 = max(bx1, x)
+            by0 = min(by0, y)
+            by1 = max(by1, y)
+        bx0 -= eps
+        by0 -= eps
+        bx1 += eps
+        by1 += eps
+        ix0 = min(max(int((bx0 - x0) // cell), 0), nx - 1)
+        ix1 = min(max(int((bx1 - x0) // cell), 0), nx - 1)
+        iy0 = min(max(int((by0 - y0) // cell), 0), ny - 1)
+        iy1 = min(max(int((by1 - y0) // cell), 0), ny - 1)
+        state = 1
+        for iy in range(iy0, iy1 + 1):
+            for ix in range(ix0, ix1 + 1):
+                c = iy * nx + ix
+                for q in range(start[c], start[c + 1]):
+                    e = items[q]
+                    ax = ex0[e]
+                    ay = ey0[e]
+                    bx = ex1[e]
+                    by = ey1[e]
+                    if max(ax, bx) < bx0 or min(ax, bx) > bx1 or max(ay, by) < by0 \
+                            or min(ay, by) > by1:
+                        continue  # outside the ring's bounding box (grown by eps)
+                    if _clip(ax, ay, bx, by, cu[i], su[i], h[i], eps) < 0.0:
+                        continue  # misses P grown by eps
+                    length = math.hypot(bx - ax, by - ay)
+                    if _clip(ax, ay, bx, by, cu[i], su[i], h[i], -eps) * length > eps:
+                        state = 0  # a piece of ∂G strictly inside P
+                        break
+                    state = -1  # grazes: leave it to shapely
+                if state == 0:
+                    break
+            if state == 0:
+                break
+        out[i] = state
+
+
+def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np.ndarray,
+                 h: np.ndarray) -> np.ndarray:
+    """``shapely.covers(target, shapely.polygons(rings))``, deciding the clear cases exactly.
+
+    Parameters
+    ----------
+    target
+        G (prepared).
+    rings
+        (n, k + 1, 2) closed rings of convex footprints.
+    cu, su, h
+        (n, k) their half-planes ``cu·x + su·y ≤ h`` (the ring's vertices are
+        where adjacent boundary lines cross).
+
+    Returns
+    -------
+    bool ndarray, shape (n,)
+    """
+    n = len(rings)
+    out = np.zeros(n, dtype=bool)
+    if n == 0:
+        return out
+    # a vertex strictly outside G: not inside; otherwise that vertex is a point of G
+    inside = shapely.intersects_xy(target, rings[:, 0, 0], rings[:, 0, 1])
+    todo = np.flatnonzero(inside)
+    if todo.size == 0:
+        return out
+    state = np.full(n, 0, np.int8)
+    grid = boundary_grid(target)
+    _decide(np.ascontiguousarray(rings), np.ascontiguousarray(cu), np.ascontiguousarray(su),
+            np.ascontiguousarray(h), *grid, todo, EPS, state)
+    out[state == 1] = True
+    rest = np.flatnonzero(state == -1)
+    if rest.size:
+        out[rest] = shapely.covers(target, shapely.polygons(rings[rest]))
+    return out
