@@ -130,8 +130,12 @@ class MotionState:
         self.reset()
 
     def reset(self) -> None:
-        self.pos = np.zeros(4)  # native x, y, z, c
-        self.offset = np.zeros(4)
+        # A board reset loses the firmware's idea of where the nozzle is, not the nozzle's
+        # physical place: keep the native position (what the deposition record is drawn in)
+        # and restart the logical frame at 0 there, as real firmware reports after a reset.
+        pos = getattr(self, "pos", None)
+        self.pos = np.zeros(4) if pos is None else pos  # native x, y, z, c
+        self.offset = -self.pos.copy()
         self.e = 0.0
         self.relative = False
         self.e_relative = False

@@ -20,11 +20,10 @@ def run(*args: str) -> subprocess.CompletedProcess:
 
 def test_demo_runs_the_pipeline_and_keeps_the_mmc_promise(tmp_path):
     out = tmp_path / "report"
-    # No disconnect here: the simulator models a board reset as the nozzle jumping to its
-    # native zero, so material after a restart lands on the wrong layer (see the report);
-    # resuming after a restart is checked, command by command, in tests/machine_io.
+    # A board reset mid-print (disconnect@900): the host reconnects and restores the state;
+    # the simulator keeps the nozzle's physical place across the reset, as hardware does.
     r = run("--out", str(out), "--faults", "corrupt~0.01,drop-ok~0.005,duplicate-ok~0.005,"
-            "busy~0.01", "--seed", "2")
+            "busy~0.01,disconnect@900", "--seed", "2")
     assert r.returncode == 0, r.stderr
     assert "simulator log equals the file: yes" in r.stdout
     assert f"report: {out / 'report.html'}" in r.stdout
@@ -36,6 +35,7 @@ def test_demo_runs_the_pipeline_and_keeps_the_mmc_promise(tmp_path):
     # Streamed through the faults, with a reconnect, nothing lost or repeated.
     assert doc["simulator_log_equals_file"] is True
     assert doc["stream"]["completed"] and doc["stream"]["resends"] > 0
+    assert doc["stream"]["reconnects"] == 1
     # Target, prediction, deposition per layer: nothing outside the part.
     assert len(doc["layers"]) == 4 and doc["violations"] == 0
     for layer in doc["layers"]:
