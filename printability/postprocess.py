@@ -608,13 +608,18 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
         layer = int(m["layer"])
         a0, a1 = first_seg[mi]
         eol = _eol_of(raw)
-        parsed = parse_line(raw)
-        fword = parsed.word("F")
-        f_text = fword.text.decode("ascii", "replace") if fword is not None else None
-        eword = parsed.word("E")
         e_rel = bool(m["flags"] & 1)
-        e_end_abs = eword.value if (eword is not None and not e_rel) else None
-        e_start_abs = (e_end_abs - m["e"]) if e_end_abs is not None else None
+
+        def words(raw=raw, e_rel=e_rel, m=m):
+            # parsed only where a word is needed: most moves only gain a rotary word
+            parsed = parse_line(raw)
+            fword = parsed.word("F")
+            f_text = fword.text.decode("ascii", "replace") if fword is not None else None
+            eword = parsed.word("E")
+            e_end_abs = eword.value if (eword is not None and not e_rel) else None
+            e_start_abs = (e_end_abs - m["e"]) if e_end_abs is not None else None
+            return f_text, eword, e_end_abs, e_start_abs
+
         simple = (a1 - a0 == 1 and a0 not in seg_pieces and m["kind"] <= 1)
         h = float(heights[layer]) if layer >= 0 else 0.2
         if simple:
@@ -633,6 +638,9 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
                 turn_to(phi, eol, layer)
             scale = _e_scale(seg_width_laid[a0], widths[a0], h, e_policy, nozzle, bead_area)
             replace = {}
+            eword = None
+            if scale != 1.0:
+                _, eword, e_end_abs, e_start_abs = words()
             if scale != 1.0 and eword is not None:
                 if e_rel:
                     replace = {"E": "E" + format_number(m["e"] * scale, ed)}
@@ -649,6 +657,7 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
             last_travel_chunk = None
             continue
         # ---- general case: chords and pieces, written as new G1 lines
+        f_text, eword, e_end_abs, e_start_abs = words()
         out.changed += 1
         pieces_out: list[bytes] = []
         e_acc = 0.0

@@ -35,7 +35,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-__all__ = ["EPS", "boundary_grid", "covers_rings"]
+__all__ = ["EPS", "boundary_grid", "chain_nearest", "covers_rings", "swept_kernel"]
 
 EPS = 1e-9
 """Margin (mm) of the half-plane tests against rounding of the ring's vertices."""
@@ -106,13 +106,19 @@ def _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def _clip(ax, ay, bx, by, cu, su, h, off):  # pragma: no cover
-    """Fraction of [a, b] inside all half-planes ``cu·x + su·y ≤ h + off`` (Liang–Barsky)."""
+def _clip(ax, ay, bx, by, cu, su, h, off, order):  # pragma: no cover
+    """Fraction of [a, b] inside all half-planes ``cu·x + su·y ≤ h + off`` (Liang–Barsky).
+
+    The half-planes are visited in ``order`` (the two sides and the two caps of
+    the move first: most edges are cut off by one of them); min and max do not
+    depend on the order, so neither does the result.
+    """
     t0 = 0.0
     t1 = 1.0
     dx = bx - ax
     dy = by - ay
-    for j in range(len(h)):
+    for jj in range(len(order)):
+        j = order[jj]
         p = cu[j] * dx + su[j] * dy
         q = h[j] + off - (cu[j] * ax + su[j] * ay)
         if p == 0.0:
@@ -133,7 +139,7 @@ def _clip(ax, ay, bx, by, cu, su, h, off):  # pragma: no cover
 
 @numba.njit(cache=True)
 def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny,
-            todo, eps, out):  # pragma: no cover
+            todo, eps, order, out):  # pragma: no cover
     """Per ring of ``todo``: 1 inside, 0 not inside, -1 undecided (∂G within ``eps``).
 
     A hand-written kernel because the candidates are few (a grid cell or two of
@@ -175,10 +181,10 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
                     if max(ax, bx) < bx0 or min(ax, bx) > bx1 or max(ay, by) < by0 \
                             or min(ay, by) > by1:
                         continue  # outside the ring's bounding box (grown by eps)
-                    if _clip(ax, ay, bx, by, cu[i], su[i], h[i], eps) < 0.0:
+                    if _clip(ax, ay, bx, by, cu[i], su[i], h[i], eps, order) < 0.0:
                         continue  # misses P grown by eps
                     length = math.hypot(bx - ax, by - ay)
-                    if _clip(ax, ay, bx, by, cu[i], su[i], h[i], -eps) * length > eps:
+                    if _clip(ax, ay, bx, by, cu[i], su[i], h[i], -eps, order) * length > eps:
                         state = 0  # a piece of ∂G strictly inside P
                         break
                     state = -1  # grazes: leave it to shapely
@@ -187,6 +193,12 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
             if state == 0:
                 break
         out[i] = state
+
+
+def _order(d: int) -> np.ndarray:
+    """Every direction once: 0 and d/2 (normal to the move), d/4 and 3d/4 (along it) first."""
+    first = [0, d // 2, d // 4, (3 * d) // 4]
+    return np.array(list(dict.fromkeys([*first, *range(d)])), dtype=np.int64)
 
 
 def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np.ndarray,
@@ -219,9 +231,87 @@ def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np
     state = np.full(n, 0, np.int8)
     grid = boundary_grid(target)
     _decide(np.ascontiguousarray(rings), np.ascontiguousarray(cu), np.ascontiguousarray(su),
-            np.ascontiguousarray(h), *grid, todo, EPS, state)
+            np.ascontiguousarray(h), *grid, todo, EPS, _order(h.shape[1]), state)
     out[state == 1] = True
     rest = np.flatnonzero(state == -1)
     if rest.size:
         out[rest] = shapely.covers(target, shapely.polygons(rings[rest]))
+    return out
+
+
+@numba.njit(cache=True)
+def swept_kernel(kind, a, b, cx, cy, rc, rs, p0, p1, cn, sn, cb, sb, c0, s0, c1, s1, k, scale,
+                 det, cu, su, h, ring):  # pragma: no cover
+    """Half-plane offsets ``h`` and ring of an ellipse (kind 0) or rectangle (kind 1) swept.
+
+    The same arithmetic, in the same order, as the numpy path of
+    :func:`printability.motion.orientation.swept_rings` (so the same rings to
+    the last bit), fused into one pass: numpy makes a dozen (n, 64)
+    temporaries per call, which cost more than the arithmetic. ``c1``/``s1``
+    (the end orientation, turning moves) are used when ``k`` is non-empty,
+    ``scale`` when non-empty; the directions ``cu``, ``su`` are filled from
+    the move's normal (``cn``, ``sn``) and the base directions (``cb``, ``sb``).
+    """
+    n, d = cu.shape
+    turning = len(k) > 0
+    scaled = len(scale) > 0
+    for i in range(n):
+        for j in range(d):
+            u = cn[i] * cb[j] - sn[i] * sb[j]
+            v = sn[i] * cb[j] + cn[i] * sb[j]
+            cu[i, j] = u
+            su[i, j] = v
+            hv = 0.0
+            for end in range(2 if turning else 1):
+                c = c0[i] if end == 0 else c1[i]
+                s = s0[i] if end == 0 else s1[i]
+                ux = c * u + s * v  # u in the nozzle frame: R(-phi) u
+                uy = -s * u + c * v
+                base = ux * cx + uy * cy
+                vx = rc * ux + rs * uy  # u in the orifice's own axes
+                vy = -rs * ux + rc * uy
+                if kind == 0:
+                    hh = base + math.sqrt((a * vx) ** 2 + (b * vy) ** 2)
+                else:
+                    hh = base + a * abs(vx) + b * abs(vy)
+                hv = hh if end == 0 else max(hv, hh)
+            if turning:
+                hv = hv * k[i]
+            if scaled:
+                hv = hv * scale[i]
+            hv = hv + max(u * p0[i, 0] + v * p0[i, 1], u * p1[i, 0] + v * p1[i, 1])
+            h[i, j] = hv
+        for j in range(d):
+            jn = j + 1 if j + 1 < d else 0
+            ring[i, j, 0] = (h[i, j] * su[i, jn] - h[i, jn] * su[i, j]) / det
+            ring[i, j, 1] = (cu[i, j] * h[i, jn] - cu[i, jn] * h[i, j]) / det
+        ring[i, d, 0] = ring[i, 0, 0]
+        ring[i, d, 1] = ring[i, 0, 1]
+
+
+@numba.njit(cache=True)
+def chain_nearest(c1, c2, per, previous):  # pragma: no cover
+    """Per move, of ``c1``, ``c2``, ``c1 + 180``, ``c2 + 180`` the equivalent nearest the last pick.
+
+    The sequential loop of
+    :func:`printability.motion.orientation.preferred_orientations` for an
+    unlimited axis, compiled (a Python loop per move cost more than the rest
+    of the planning); ``np.rint`` rounds half to even like Python's ``round``,
+    so the picks are the same.
+    """
+    n = len(c1)
+    out = np.empty(n)
+    prev = previous
+    for i in range(n):
+        best = 0.0
+        first = True
+        for q in range(4):
+            c = c1[i] if q == 0 else c2[i] if q == 1 else c1[i] + 180.0 if q == 2 \
+                else c2[i] + 180.0
+            near = c + per * np.rint((prev - c) / per)
+            if first or abs(near - prev) < abs(best - prev):
+                best = near
+                first = False
+        out[i] = best
+        prev = best
     return out

@@ -36,7 +36,7 @@ from shapely.geometry.base import BaseGeometry
 from printability.errors import InputError
 from printability.geometry import polygons_of
 from printability.machine import Machine
-from printability.motion.fastfit import covers_rings
+from printability.motion.fastfit import chain_nearest, covers_rings, swept_kernel
 from printability.nozzle import Nozzle
 
 __all__ = [
@@ -230,17 +230,43 @@ def swept_rings(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.nd
                   directions=directions)[0]
 
 
-def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64):
+def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
+           kernel=True):
     """Rings and their half-planes: ring (n, d + 1, 2), and u = (cu, su), h of shape (n, d).
 
     The swept set lies in every half-plane ``cu·x + su·y ≤ h``; the ring's vertices are
-    where adjacent boundary lines cross.
+    where adjacent boundary lines cross. ``kernel=False`` forces the numpy path (the
+    kernel's reference in the tests).
     """
     n = len(p0)
     # The directions are turned so that two of them are normal to the move:
     # the long sides of the swept set are then exact, not cut by a spike.
     normal = np.arctan2(p1[:, 0] - p0[:, 0], -(p1[:, 1] - p0[:, 1]))
     base = np.arange(directions) * (2 * math.pi / directions)
+    det = math.sin(2 * math.pi / directions)
+    if kernel and piece.kind in ("ellipse", "rect"):
+        r = math.radians(piece.rotation)
+        empty = np.zeros(0)
+        phi = np.deg2rad(np.asarray(angle, dtype=float)).reshape(n)
+        if angle_end is not None:
+            phi1 = np.deg2rad(np.asarray(angle_end, dtype=float)).reshape(n)
+            d = np.abs(np.asarray(angle_end, dtype=float) - angle)
+            k = 1.0 / np.cos(np.deg2rad(np.minimum(d, 120.0)) / 2.0)
+            c1, s1 = np.cos(phi1), np.sin(phi1)
+        else:
+            k = c1 = s1 = empty
+        sc = empty if scale is None else np.broadcast_to(np.asarray(scale, dtype=float),
+                                                         (n,)).copy()
+        cu = np.empty((n, directions))
+        su = np.empty((n, directions))
+        h = np.empty((n, directions))
+        ring = np.empty((n, directions + 1, 2))
+        swept_kernel(0 if piece.kind == "ellipse" else 1, float(piece.a), float(piece.b),
+                     float(piece.center[0]), float(piece.center[1]), math.cos(r), math.sin(r),
+                     np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
+                     np.cos(normal), np.sin(normal), np.cos(base), np.sin(base),
+                     np.cos(phi), np.sin(phi), c1, s1, k, sc, det, cu, su, h, ring)
+        return ring, cu, su, h
     cn, sn = np.cos(normal)[:, None], np.sin(normal)[:, None]
     cb, sb = np.cos(base)[None, :], np.sin(base)[None, :]
     cu = cn * cb - sn * sb  # cos(normal + base), without a cos per element
@@ -265,7 +291,6 @@ def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64):
     hh = np.concatenate([h, h[:, :1]], axis=1)
     cc = np.concatenate([cu, cu[:, :1]], axis=1)
     ss = np.concatenate([su, su[:, :1]], axis=1)
-    det = math.sin(2 * math.pi / directions)
     ring = np.empty((n, directions + 1, 2))
     ring[:, :-1, 0] = (hh[:, :-1] * ss[:, 1:] - hh[:, 1:] * ss[:, :-1]) / det
     ring[:, :-1, 1] = (cc[:, :-1] * hh[:, 1:] - cc[:, 1:] * hh[:, :-1]) / det
@@ -383,6 +408,12 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
     c1 = (direction + b1).tolist()
     c2 = (direction + b2).tolist()
     reach = machine.kind == "ttr" and machine.angle_max - machine.angle_min < per - 1e-9
+    if not reach:
+        out = chain_nearest(np.asarray(c1, dtype=float), np.asarray(c2, dtype=float),
+                            float(per), float(previous))
+        if return_candidates:
+            return out, np.asarray(c1), np.asarray(c2)
+        return out
     out = np.empty(n)
     prev = previous
     for i in range(n):

@@ -94,3 +94,44 @@ def test_footprints_touching_the_boundary_exactly():
         np.testing.assert_array_equal(fast, _reference(target, rings, cu, su, h))
         covered.append(fast)
     assert covered[0][1:-1].all() and not covered[3].any()
+
+
+@pytest.mark.parametrize("nozzle", [*NOZZLES, "circle:d=0.4",
+                                    "ellipse:major=0.8,minor=0.3,rot=30,x=0.1"])
+def test_swept_kernel_is_the_numpy_path_to_the_bit(nozzle):
+    """The fused ring kernel repeats numpy's arithmetic: same rings, same half-planes."""
+    rng = np.random.default_rng(3)
+    n = 500
+    p0 = rng.uniform(0, 200, (n, 2))
+    p1 = p0 + rng.normal(0, 2, (n, 2))
+    p1[:10] = p0[:10]
+    angle = rng.uniform(-400, 400, n)
+    end = angle + rng.uniform(-20, 20, n)
+    scale = rng.uniform(0.3, 1.0, n)
+    for piece in convex_pieces(parse_nozzle(nozzle)):
+        for kw in ({}, {"angle_end": end}, {"scale": scale}, {"angle_end": end, "scale": scale}):
+            fast = _swept(piece, p0, p1, angle, **kw)
+            slow = _swept(piece, p0, p1, angle, kernel=False, **kw)
+            for x, y in zip(fast, slow, strict=True):
+                np.testing.assert_array_equal(x, y)
+
+
+def test_chain_nearest_is_the_python_loop():
+    """The compiled chaining picks what the Python loop picked, ties and halves included."""
+    from printability.motion.fastfit import chain_nearest
+
+    rng = np.random.default_rng(5)
+    c1 = np.concatenate([rng.uniform(-720, 720, 3000), np.arange(-450.0, 450.0, 45.0)])
+    c2 = np.concatenate([c1[:3000] + rng.choice([0.0, 90.0, 45.5], 3000),
+                         np.arange(-450.0, 450.0, 45.0) + 90.0])
+    for per in (180.0, 360.0):
+        out, prev = [], 0.0
+        for a, b in zip(c1.tolist(), c2.tolist(), strict=True):
+            best = None
+            for c in (a, b, a + 180.0, b + 180.0):
+                near = c + per * round((prev - c) / per)
+                if best is None or abs(near - prev) < abs(best - prev):
+                    best = near
+            out.append(best)
+            prev = best
+        np.testing.assert_array_equal(chain_nearest(c1, c2, per, 0.0), np.array(out))
