@@ -233,7 +233,7 @@ def _outcome(layer: Layer, nozzle: Nozzle, machine: Machine, engine: str,
              settings: Settings, keep: bool) -> LayerOutcome:
     t0 = time.perf_counter()
     area = layer.area
-    eng = choose_engine(nozzle, machine) if engine == "auto" else engine
+    eng = choose_engine(nozzle, machine, layer.region) if engine == "auto" else engine
     try:
         r = compute_mmc(layer.region, nozzle, machine, engine=eng, settings=settings,
                         name=f"layer {layer.index} (z={layer.z:g} mm)")

@@ -11,6 +11,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+import shapely
+
 from printability.errors import InputError, NozzleTooLargeError
 from printability.geometry import as_region
 from printability.machine import Machine, parse_machine
@@ -20,6 +22,7 @@ from printability.options import ENGINES
 from printability.settings import DEFAULT_SETTINGS, Settings
 
 __all__ = [
+    "EXACT_VERTEX_LIMIT",
     "Components",
     "MMCResult",
     "MotionRestriction",
@@ -36,17 +39,26 @@ ENGINE_FUNCTIONS: dict[str, str] = {
 }
 
 
-def choose_engine(nozzle: Nozzle, machine: Machine) -> str:
+# Above this many boundary vertices the exact engine's certified offsets and unions cost
+# minutes per layer (an 18k-vertex G-code layer: 144 s exact, 3 s raster), so auto prefers
+# the raster engine, whose cost follows the area, not the vertex count.
+EXACT_VERTEX_LIMIT = 10_000
+
+
+def choose_engine(nozzle: Nozzle, machine: Machine, region: Any = None) -> str:
     """The engine ``auto`` picks.
 
     Chains need the sampled engine; a nozzle that does not turn (XY machine,
-    or a round nozzle on any separable machine) is exact in vector form; an
+    or a round nozzle on any separable machine) is exact in vector form unless
+    the region has more than :data:`EXACT_VERTEX_LIMIT` vertices; an
     asymmetric nozzle on a rotary axis goes to the raster engine, whose cost
     does not grow with the number of polygon vertices.
     """
     if not machine.separable:
         return "sampled"
     if machine.kind == "xy" or nozzle.symmetry_period == 0.0:
+        if region is not None and shapely.get_num_coordinates(region) > EXACT_VERTEX_LIMIT:
+            return "raster"
         return "exact"
     return "raster"
 
@@ -90,7 +102,7 @@ def compute_mmc(
             f"({g.area:.4g} mm²); it cannot fit anywhere, so nothing of it would be printed"
         )
     if engine == "auto":
-        engine = choose_engine(noz, mach)
+        engine = choose_engine(noz, mach, g)
     if engine in ("exact", "raster", "reference") and not mach.separable:
         raise InputError(
             f"the {engine} engine needs a separable machine (xy or ttr); machine "

@@ -166,3 +166,18 @@ def test_outline_modes_bracket_the_true_ellipse():
     inner, outer = n.outline(0, quad_segs=8, mode="inner"), n.outline(0, quad_segs=8, mode="outer")
     assert inner.area < n.area < outer.area
     assert inner.within(outer)
+
+
+def test_auto_engine_choice():
+    from printability.mmc import EXACT_VERTEX_LIMIT, choose_engine
+
+    circle, ellipse = parse_nozzle("circle:d=0.4"), parse_nozzle("ellipse:major=0.8,minor=0.3")
+    xy, ttr, polar = parse_machine("xy"), parse_machine("ttr"), parse_machine("polar")
+    small = box(0, 0, 10, 10)
+    big = Point(0, 0).buffer(10, quad_segs=EXACT_VERTEX_LIMIT // 4 + 10)
+    assert choose_engine(circle, xy, small) == "exact"
+    assert choose_engine(circle, ttr, small) == "exact"      # a round nozzle needs no angle
+    assert choose_engine(circle, xy, big) == "raster"        # too many vertices for exact
+    assert choose_engine(ellipse, xy, small) == "exact"
+    assert choose_engine(ellipse, ttr, small) == "raster"
+    assert choose_engine(ellipse, polar, small) == "sampled"
