@@ -391,10 +391,12 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
     beta_all, wtab_all = width_table(nozzle)
     half = beta_all < 180.0  # the width repeats every 180°
     beta, wtab = beta_all[half], wtab_all[half]
-    w = np.where(np.isfinite(widths), widths, wtab.min())
-    b1 = np.empty(n)
-    b2 = np.empty(n)
-    for lo in range(0, n, 8192):
+    w_all = np.where(np.isfinite(widths), widths, wtab.min())
+    # a slicer plans a handful of distinct widths: each row depends on its width only
+    w, inverse = np.unique(w_all, return_inverse=True)
+    b1 = np.empty(len(w))
+    b2 = np.empty(len(w))
+    for lo in range(0, len(w), 8192):
         err = np.abs(wtab[None, :] - w[lo:lo + 8192, None])
         j1 = np.argmin(err, axis=1)
         e1 = err[np.arange(len(j1)), j1]
@@ -404,6 +406,8 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
         e2 = err2[np.arange(len(j2)), j2]
         b1[lo:lo + 8192] = beta[j1]
         b2[lo:lo + 8192] = np.where(e2 <= e1 + 1e-4, beta[j2], beta[j1])
+    b1 = b1[inverse.reshape(-1)]
+    b2 = b2[inverse.reshape(-1)]
     # candidates: direction + b (+180 is the same width), unwrap sequentially
     c1 = (direction + b1).tolist()
     c2 = (direction + b2).tolist()
