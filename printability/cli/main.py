@@ -46,7 +46,7 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(
-    version: bool = typer.Option(  # noqa: B008
+    version: bool = typer.Option(
         False, "--version", callback=_version, is_eager=True, help="Show the version and exit."
     ),
 ) -> None:
@@ -64,26 +64,23 @@ def error_paragraph(exc: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the process exit code."""
+    """Run the CLI; returns the process exit code.
+
+    Typer (in standalone mode) prints usage errors itself and exits with 2;
+    printability's own errors reach us as exceptions and become one paragraph
+    on stderr with exit code 1. Anything else is a bug and keeps its traceback.
+    """
     try:
-        app(args=argv, standalone_mode=False)
+        app(args=argv, prog_name="printability", standalone_mode=True)
+    except SystemExit as exc:
+        code = exc.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
     except PrintabilityError as exc:
         print(error_paragraph(exc), file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("printability: interrupted", file=sys.stderr)
         return 130
-    except typer.Exit as exc:
-        return int(exc.exit_code or 0)
-    except (typer.Abort,):
-        return 1
-    except Exception as exc:  # click usage errors
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            return exc.exit_code
-        raise
     return 0
 
 
