@@ -54,6 +54,7 @@ class FakeMarlin:
         self._silent = False
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._fired: set[tuple[int, str]] = set()
+        self.resend_requests = 0  # Resend lines sent (one per corrupted or out-of-order line)
 
     def start(self) -> FakeMarlin:
         if self.banner:
@@ -95,6 +96,7 @@ class FakeMarlin:
             self._send("ok")
 
     def _resend(self, reason: str) -> None:
+        self.resend_requests += 1
         self._send(f"Error:{reason}, Last Line: {self.last_n}")
         self._send(f"Resend: {self.last_n + 1}")
         if self.ok_after_resend:

@@ -75,7 +75,10 @@ def test_stale_resends_in_send_ahead_are_ignored():
         host.connect()
         report = host.stream(p)
     assert printed(fw) == list(p.commands)
-    assert report.resends == 1 and report.stale_resends >= 1
+    # One line was resent; every further request for it (lines already in flight arrive out
+    # of order and each draws one, as many as timing allows) is recognised as stale.
+    assert report.resends == 1
+    assert report.stale_resends == fw.resend_requests - 1
 
 
 def test_too_many_resends_of_one_line_stop_with_the_place():
