@@ -316,17 +316,15 @@ def analyze(
 
 
 def _rank(per_nozzle: list[NozzleAnalysis], machine: Machine) -> list[NozzleAnalysis]:
-    from printability.ranking import DEFAULT_SPEED, bead_width_for_time
+    from printability.ranking import DEFAULT_SPEED, bead_width_for_time, rank_order
 
     timed = []
     for n in per_nozzle:
         w = bead_width_for_time(n.nozzle, rotary=machine.has_rotary and not n.nozzle.is_round)
         timed.append(replace(n, build_time=n.as_built_area / (w * DEFAULT_SPEED)))
     multi = any(o.height > 0 for n in timed for o in n.layers)
-    # lost amounts equal to 1e-9 relative are ties, ordered by build time
-    key = (lambda n: (float(f"{n.volume('lost_area'):.9g}"), n.build_time)) if multi else \
-          (lambda n: (float(f"{n.lost_area:.9g}"), n.build_time))
-    ordered = sorted(timed, key=key)
+    lost = [n.volume("lost_area") if multi else n.lost_area for n in timed]
+    ordered = [timed[i] for i in rank_order(lost, [n.build_time for n in timed])]
     return [replace(n, rank=i + 1) for i, n in enumerate(ordered)]
 
 

@@ -33,7 +33,7 @@ from printability.errors import InputError
 from printability.mmc.result import MMCResult
 from printability.nozzle import Nozzle
 
-__all__ = ["DEFAULT_SPEED", "RankRow", "bead_width_for_time", "rank"]
+__all__ = ["DEFAULT_SPEED", "RankRow", "bead_width_for_time", "rank", "rank_order"]
 
 DEFAULT_SPEED = 40.0
 """Deposition speed of the build-time model, mm/s (a typical perimeter/infill speed)."""
@@ -114,6 +114,31 @@ def _layers_of(entry: MMCResult | Sequence[MMCResult], i: int) -> list[MMCResult
     return layers
 
 
+def rank_order(
+    lost: Sequence[float],
+    build_time: Sequence[float],
+    *,
+    tie_tolerance: float = 1e-6,
+) -> list[int]:
+    """Indices of the candidates, best first: least lost, near-ties by build time.
+
+    Lost amounts closer than ``tie_tolerance`` plus a relative 10⁻⁹ form a
+    run that is ordered by build time; equal times keep the input order.
+    """
+    order = sorted(range(len(lost)), key=lambda i: lost[i])
+    ranked: list[int] = []
+    run = order[:1]
+    for i in order[1:]:
+        prev, cur = lost[run[-1]], lost[i]
+        if cur - prev <= tie_tolerance + 1e-9 * max(abs(cur), abs(prev)):
+            run.append(i)
+        else:
+            ranked.extend(sorted(run, key=lambda j: (build_time[j], j)))
+            run = [i]
+    ranked.extend(sorted(run, key=lambda j: (build_time[j], j)))
+    return ranked
+
+
 def rank(
     results: Sequence[MMCResult | Sequence[MMCResult]],
     *,
@@ -185,17 +210,6 @@ def rank(
             bead_width=w, build_time=area_built / (w * speed),
             components=max(r.components.count for r in layers),
         ))
-    order = sorted(range(len(unsorted)), key=lambda i: unsorted[i]["lost"])
-    # group runs of near-equal lost amounts, then order each run by build time
-    ranked: list[int] = []
-    run = [order[0]]
-    for i in order[1:]:
-        prev = unsorted[run[-1]]["lost"]
-        cur = unsorted[i]["lost"]
-        if cur - prev <= tie_tolerance + 1e-9 * max(abs(cur), abs(prev)):
-            run.append(i)
-        else:
-            ranked.extend(sorted(run, key=lambda j: (unsorted[j]["build_time"], j)))
-            run = [i]
-    ranked.extend(sorted(run, key=lambda j: (unsorted[j]["build_time"], j)))
+    ranked = rank_order([u["lost"] for u in unsorted], [u["build_time"] for u in unsorted],
+                        tie_tolerance=tie_tolerance)
     return tuple(RankRow(rank=n + 1, **unsorted[i]) for n, i in enumerate(ranked))
