@@ -66,6 +66,18 @@ class FakeMarlin:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5)
+        # Keep what the host wrote just before closing (an M112, say): the reader thread may
+        # have stopped before the last bytes arrived.
+        tail = b""
+        while select.select([self.master], [], [], 0.05)[0]:
+            try:
+                chunk = os.read(self.master, 4096)
+            except OSError:
+                break
+            if not chunk:
+                break
+            tail += chunk
+        self.received.extend(line for line in tail.split(b"\n") if line)
         for fd in (self.master, self._slave):
             try:
                 os.close(fd)
