@@ -29,10 +29,15 @@ its kind and the rounding error of E is carried, never accumulated.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from gcode.rotary import BEAD_MODELS, e_per_mm, feed_for_move, nearest_equivalent
+
+if TYPE_CHECKING:
+    from gcode.line import ParsedLine
 
 __all__ = [
     "MARKER",
@@ -41,6 +46,7 @@ __all__ = [
     "edit_line",
     "format_number",
     "header_lines",
+    "simple_move_words",
 ]
 
 #: First words of the comment that marks a file written or post-processed by printability.
@@ -405,6 +411,62 @@ class Emitter:
                                         self._e_only_feed(feed, length)]))
 
 
+# The shape slicers write nearly every move in: "G1 X1.5 Y-2 E.03 F1800 ; note\n" (upper-case
+# letters, signed decimals with a digit after any point, words set off by spaces; no line
+# number, checksum, tab between words or quote). parse_line splits such a line into command,
+# words, trailing blanks, comment and terminator and nothing else, so words can be found and
+# edited by slicing the bytes; every other line goes through the lossless tokeniser.
+_SIMPLE_MOVE = re.compile(
+    # one way to match each number: no backtracking blow-up on long lines that fail
+    rb"G\d+((?: +[A-Z][-+]?(?:\d+(?:\.\d+)?|\.\d+))*)[ \t]*(?:;[^\r\n]*)?(?:\r\n|\n|\r)?\Z")
+
+
+def simple_move_words(raw: bytes) -> list[bytes] | None:
+    """The address words of a line in the common slicer shape, or None for any other line.
+
+    Parameters
+    ----------
+    raw
+        The line, with or without its terminator.
+
+    Returns
+    -------
+    list of bytes or None
+        The words as written (``[b"X1.5", b"E.03"]``), the same as the ``text`` of
+        :attr:`gcode.line.ParsedLine.words`; None when the line is not a ``G`` command
+        of upper-case letter-number words separated by spaces (then use
+        :func:`gcode.line.parse_line`).
+    """
+    m = _SIMPLE_MOVE.match(raw)
+    if m is None:
+        return None
+    return raw[m.start(1):m.end(1)].split()
+
+
+def _edit_simple(raw: bytes, replace: Mapping[str, str] | None,
+                 add: Sequence[str]) -> bytes | None:
+    """:func:`edit_line` without ``drop`` on a line of the common shape; None for other lines."""
+    m = _SIMPLE_MOVE.match(raw)
+    if m is None:
+        return None
+    a, b = m.span(1)
+    head = raw[:b]
+    todo = dict(replace) if replace else {}
+    if todo and a < b:
+        # split on single spaces so that runs of blanks come back unchanged from the join
+        parts = raw[a:b].split(b" ")
+        for i, part in enumerate(parts):
+            if part and chr(part[0]) in todo:
+                parts[i] = todo.pop(chr(part[0])).encode("ascii")
+                if not todo:
+                    break
+        head = raw[:a] + b" ".join(parts)
+    extra = [*todo.values(), *add]
+    if not extra:
+        return head + raw[b:]
+    return head + b" " + b" ".join(w.encode("ascii") for w in extra) + raw[b:]
+
+
 def edit_line(raw: bytes, *, replace: Mapping[str, str] | None = None,
               add: Sequence[str] = (), drop: Sequence[str] = ()) -> bytes:
     """Rewrite the address words of one line, keeping every other byte.
@@ -427,9 +489,20 @@ def edit_line(raw: bytes, *, replace: Mapping[str, str] | None = None,
     bytes
         The new line. A word to replace that the line lacks is added instead.
     """
-    from gcode.line import Segment, parse_line
+    if not drop and isinstance(raw, bytes):
+        fast = _edit_simple(raw, replace, add)
+        if fast is not None:
+            return fast
+    from gcode.line import parse_line
 
-    parsed = parse_line(raw)
+    return _edit_tokens(parse_line(raw), replace=replace, add=add, drop=drop)
+
+
+def _edit_tokens(parsed: ParsedLine, *, replace: Mapping[str, str] | None = None,
+                 add: Sequence[str] = (), drop: Sequence[str] = ()) -> bytes:
+    """:func:`edit_line` on a line already split by :func:`gcode.line.parse_line` (any line)."""
+    from gcode.line import Segment
+
     segs = list(parsed.segments)
     todo = dict(replace or {})
     dropping = {d.upper() for d in drop}

@@ -43,7 +43,6 @@ or any other shape, is checked move by move with its whole orifice.
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import re
@@ -519,241 +518,332 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
              widths,
              heights, wopts: WriterOptions, turns: bool, e_policy: str, nozzle: Nozzle,
              options: PostprocessOptions):
-    """Copy the file line by line, rewriting the part extrusions that need it."""
+    """Copy the file, rewriting the part extrusions that need it.
+
+    Only the lines of moves that may change are looked at one by one; the runs of
+    lines between them are copied as single slices of ``data``. The chunks of the
+    result are one per line up to the first command line (the header goes there),
+    then runs and rewritten lines.
+    """
     from gcode.line import parse_line
     from gcode.rotary import bead_area
-    from gcode.writer import edit_line
+    from gcode.writer import edit_line, simple_move_words
 
     out = _Out()
     n_lines = len(g.lines)
     starts = [*g.lines["start"].tolist(), len(data)]
-    # chords of each move
+    n_moves = len(moves)
+    # chords of each move (a later run of chords of the same move wins, as in a dict)
     first_seg: dict[int, tuple[int, int]] = {}
+    has_seg = np.zeros(n_moves, dtype=bool)
+    with_pieces = np.zeros(n_moves, dtype=bool)
     if len(seg):
-        mv_ids = seg_move
-        change = np.flatnonzero(np.diff(mv_ids)) + 1
-        b = np.concatenate([[0], change, [len(mv_ids)]])
-        for a0, a1 in itertools.pairwise(b):
-            first_seg[int(mv_ids[a0])] = (int(a0), int(a1))
-    move_of_line = {int(li): i for i, li in enumerate(moves["line"].tolist())}
-    cur = 0.0  # rotary coordinate
-    last_travel_chunk: int | None = None  # chunk index of a travel we may fold C into
+        change = np.flatnonzero(np.diff(seg_move)) + 1
+        b = np.concatenate([[0], change, [len(seg_move)]])
+        first_seg = dict(zip(seg_move[b[:-1]].tolist(),
+                             zip(b[:-1].tolist(), b[1:].tolist(), strict=True), strict=True))
+        keys = np.fromiter(first_seg, dtype=np.int64, count=len(first_seg))
+        ranges = np.array(list(first_seg.values()), dtype=np.int64).reshape(-1, 2)
+        has_seg[keys] = True
+        piece_flag = np.zeros(len(seg) + 1, dtype=np.int64)
+        if seg_pieces:
+            piece_flag[np.fromiter(seg_pieces, dtype=np.int64, count=len(seg_pieces)) + 1] = 1
+        csum = np.cumsum(piece_flag)
+        with_pieces[keys] = csum[ranges[:, 1]] > csum[ranges[:, 0]]
+
+    # the move of each line: the last move listed on it
+    mv_line = moves["line"].astype(np.int64)
+    lines_u, last_rev = np.unique(mv_line[::-1], return_index=True)
+    move_u = n_moves - 1 - last_rev
+    keep = (lines_u >= 0) & (lines_u < n_lines)
+    lines_u, move_u = lines_u[keep], move_u[keep]
+
     fold = wopts.feed_policy == "xy"
+    # what each move line does to the travel a turn may be folded into (see below)
+    _NONE, _TRAVEL, _RESET, _WORK = 0, 1, 2, 3
+    work = has_seg & (with_pieces | turns)
+    with np.errstate(invalid="ignore"):
+        is_travel = ((moves["e"] <= 0) & (moves["kind"] <= 1)
+                     & ((moves["x1"] != moves["x0"]) | (moves["y1"] != moves["y0"])))
+        extruding = moves["e"] > 0
+    effect = np.full(n_moves, _NONE, dtype=np.int8)
+    effect[extruding] = _RESET
+    if turns:
+        effect[has_seg] = _RESET
+        if fold:
+            effect[is_travel] = _TRAVEL
+    effect[work] = _WORK
+    ev = effect[move_u] != _NONE
+    ev_line = lines_u[ev].tolist()
+    ev_move = move_u[ev].tolist()
+    ev_code = effect[move_u[ev]].tolist()
+
+    # per-move and per-chord columns as Python objects: the loop below reads them one by one
+    m_e = moves["e"].tolist()
+    m_kind = moves["kind"].tolist()
+    m_flags = moves["flags"].tolist()
+    m_layer = moves["layer"].tolist()
+    m_x0, m_y0 = moves["x0"].tolist(), moves["y0"].tolist()
+    m_x1, m_y1 = moves["x1"].tolist(), moves["y1"].tolist()
+    m_z0, m_z1 = moves["z0"].tolist(), moves["z1"].tolist()
+    s_x0, s_y0 = seg["x0"].tolist(), seg["y0"].tolist()
+    s_x1, s_y1 = seg["x1"].tolist(), seg["y1"].tolist()
+    s_e = seg["e"].tolist()
+    s_angle = np.asarray(seg_angle, dtype=float).tolist()
+    s_fold = np.asarray(seg_fold, dtype=bool).tolist()
+    s_turn = _planned_turns(np.asarray(seg_angle, dtype=float)).tolist()
+    heights_l = np.asarray(heights, dtype=float).tolist()
+    if len(seg):
+        layer_of_seg = moves["layer"][seg_move]
+        h_seg = np.where(layer_of_seg >= 0,
+                         np.asarray(heights, dtype=float)[np.maximum(layer_of_seg, 0)]
+                         if len(heights) else 0.2, 0.2)
+        s_scale = _e_scales(np.asarray(seg_width_laid, dtype=float),
+                            np.asarray(widths, dtype=float), h_seg, e_policy, nozzle,
+                            bead_area).tolist()
+    else:
+        s_scale = []
+
+    cur = 0.0  # rotary coordinate
+    letter = wopts.letter
+    d_ang = wopts.angle_decimals
+    cur_text = format_number(cur, d_ang)
+    last_travel_chunk: int | None = None  # chunk index of a travel we may fold C into
     xd = wopts.xy_decimals
     ed = 5
     turned: dict[int, int] = {}
-    d_ang = wopts.angle_decimals
+    period = wopts.period or 360.0
+    lo, hi = wopts.angle_min, wopts.angle_max
+    chunks = out.chunks
 
     def coord_for(phi: float, *, unwind: bool = False) -> float:
-        c = nearest_equivalent(phi, 0.0 if unwind else cur, period=wopts.period or 360.0,
-                               lo=wopts.angle_min, hi=wopts.angle_max)
+        c = nearest_equivalent(phi, 0.0 if unwind else cur, period=period, lo=lo, hi=hi)
         if c is None:  # cannot happen: candidates were filtered to reachable ones
             raise InputError(f"orientation {phi:.3f}° is outside the rotary axis limits")
         return c
 
-    def turn_to(phi: float, eol: bytes, layer: int) -> None:
-        nonlocal cur, last_travel_chunk
-        if not turns or not math.isfinite(phi):
+    def turn_to(phi: float, c: float, c_text: str, eol: bytes, layer: int) -> None:
+        # a turn before the move: folded into the travel before it, else a move of its own
+        nonlocal cur, cur_text, last_travel_chunk
+        if c_text == cur_text:
             return
-        c = coord_for(phi)
-        if format_number(c, d_ang) == format_number(cur, d_ang):
-            return
-        word = wopts.letter + format_number(c, d_ang)
+        word = letter + c_text
         if fold and last_travel_chunk is not None:
             if wopts.unwind:
                 c = coord_for(phi, unwind=True)
-                word = wopts.letter + format_number(c, d_ang)
-            chunk = out.chunks[last_travel_chunk]
-            out.chunks[last_travel_chunk] = _add_word(chunk, word)
-            if not getattr(chunk, "_changed", False):
-                pass
-            out.changed += 0
+                c_text = format_number(c, d_ang)
+                word = letter + c_text
+            chunks[last_travel_chunk] = edit_line(chunks[last_travel_chunk], add=[word])
         else:
-            out.chunks.append(b"G1 " + word.encode() + eol)
+            chunks.append(b"G1 " + word.encode() + eol)
             out.inserted += 1
         out.rotary_words += 1
         turned[layer] = turned.get(layer, 0) + 1
         cur = c
+        cur_text = c_text
         last_travel_chunk = None
 
-    folded_lines: set[int] = set()
-
-    def _add_word(chunk: bytes, word: str) -> bytes:
-        return edit_line(chunk, add=[word])
-
-    for li in range(n_lines):
-        raw = data[starts[li]:starts[li + 1]]
-        mi = move_of_line.get(li)
-        if mi is None or mi not in first_seg or not _needs_work(mi, first_seg, seg_pieces,
-                                                                 seg_angle, turns, moves,
-                                                                 seg_width_laid, widths,
-                                                                 e_policy):
-            out.chunks.append(raw)
-            if mi is not None:
-                m = moves[mi]
-                is_travel = (m["e"] <= 0) and m["kind"] <= 1 and (
-                    m["x1"] != m["x0"] or m["y1"] != m["y0"])
-                if is_travel and fold and turns:
-                    last_travel_chunk = len(out.chunks) - 1
-                    folded_lines.add(li)
-                elif mi in first_seg and turns:
-                    # an unchanged part extrusion still sets the orientation it was planned at
-                    a0, _ = first_seg[mi]
-                    last_travel_chunk = None
-                elif m["e"] > 0:
-                    last_travel_chunk = None
-            continue
-        # ---- this move is rewritten
-        m = moves[mi]
-        layer = int(m["layer"])
-        a0, a1 = first_seg[mi]
-        eol = _eol_of(raw)
-        e_rel = bool(m["flags"] & 1)
-
-        def words(raw=raw, e_rel=e_rel, m=m):
-            # parsed only where a word is needed: most moves only gain a rotary word
+    def words(raw: bytes, e_rel: bool, e_move: float):
+        # read only where a word is needed: most moves only gain a rotary word
+        ws = simple_move_words(raw)
+        if ws is not None:
+            f_text = e_text = None
+            for w in ws:
+                if f_text is None and w[:1] == b"F":
+                    f_text = w.decode("ascii")
+                elif e_text is None and w[:1] == b"E":
+                    e_text = w
+            has_e = e_text is not None
+            e_value = float(e_text[1:]) if has_e else None
+        else:
             parsed = parse_line(raw)
             fword = parsed.word("F")
             f_text = fword.text.decode("ascii", "replace") if fword is not None else None
             eword = parsed.word("E")
-            e_end_abs = eword.value if (eword is not None and not e_rel) else None
-            e_start_abs = (e_end_abs - m["e"]) if e_end_abs is not None else None
-            return f_text, eword, e_end_abs, e_start_abs
+            has_e = eword is not None
+            e_value = eword.value if has_e else None
+        e_end_abs = e_value if (has_e and not e_rel) else None
+        e_start_abs = (e_end_abs - e_move) if e_end_abs is not None else None
+        return f_text, has_e, e_end_abs, e_start_abs
 
-        simple = (a1 - a0 == 1 and a0 not in seg_pieces and m["kind"] <= 1)
-        h = float(heights[layer]) if layer >= 0 else 0.2
+    # the lines before the first command are chunks of their own: the header goes among them
+    first_cmd = min(_first_command_line(g.lines), ev_line[0] if ev_line else n_lines)
+    for li in range(first_cmd):
+        chunks.append(data[starts[li]:starts[li + 1]])
+    pos = starts[first_cmd]  # data before pos is in the chunks
+    pending: int | None = None  # the last travel line since the last rewritten move
+
+    for li, mi, code in zip(ev_line, ev_move, ev_code, strict=True):
+        # A turn may be folded into the last travel before the move when no extrusion
+        # came in between; every rewritten move ends that chance.
+        if code == _TRAVEL:
+            pending = li
+            continue
+        if code == _RESET:
+            pending = None
+            continue
+        if pending is not None:
+            chunks.append(data[pos:starts[pending]])
+            chunks.append(data[starts[pending]:starts[pending + 1]])
+            last_travel_chunk = len(chunks) - 1
+            pos = starts[pending + 1]
+            pending = None
+        else:
+            last_travel_chunk = None
+        chunks.append(data[pos:starts[li]])
+        pos = starts[li + 1]
+        raw = data[starts[li]:pos]
+
+        # ---- this move is rewritten
+        layer = m_layer[mi]
+        a0, a1 = first_seg[mi]
+        eol = _eol_of(raw)
+        e_rel = bool(m_flags[mi] & 1)
+        e_move = m_e[mi]
+        simple = (a1 - a0 == 1 and a0 not in seg_pieces and m_kind[mi] <= 1)
+        h = heights_l[layer] if layer >= 0 else 0.2
         if simple:
-            phi = seg_angle[a0]
+            phi = s_angle[a0]
             add: list[str] = []
-            if seg_fold[a0] and turns and math.isfinite(phi) and \
-                    abs(coord_for(phi) - cur) <= _planned_turn(seg_angle, a0) + 1e-6:
-                # the turn checked by the planner, made while moving
+            if turns and math.isfinite(phi):
                 c = coord_for(phi)
-                if format_number(c, d_ang) != format_number(cur, d_ang):
-                    add = [wopts.letter + format_number(c, d_ang)]
-                    out.rotary_words += 1
-                    turned[layer] = turned.get(layer, 0) + 1
-                    cur = c
-            else:
-                turn_to(phi, eol, layer)
-            scale = _e_scale(seg_width_laid[a0], widths[a0], h, e_policy, nozzle, bead_area)
-            replace = {}
-            eword = None
-            if scale != 1.0:
-                _, eword, e_end_abs, e_start_abs = words()
-            if scale != 1.0 and eword is not None:
-                if e_rel:
-                    replace = {"E": "E" + format_number(m["e"] * scale, ed)}
+                c_text = format_number(c, d_ang)
+                if s_fold[a0] and abs(c - cur) <= s_turn[a0] + 1e-6:
+                    # the turn checked by the planner, made while moving
+                    if c_text != cur_text:
+                        add = [letter + c_text]
+                        out.rotary_words += 1
+                        turned[layer] = turned.get(layer, 0) + 1
+                        cur = c
+                        cur_text = c_text
                 else:
-                    replace = {"E": "E" + format_number(e_start_abs + m["e"] * scale, ed)}
+                    turn_to(phi, c, c_text, eol, layer)
+            scale = s_scale[a0]
+            replace = {}
+            if scale != 1.0:
+                _, has_e, e_end_abs, e_start_abs = words(raw, e_rel, e_move)
+                if has_e:
+                    if e_rel:
+                        replace = {"E": "E" + format_number(e_move * scale, ed)}
+                    else:
+                        replace = {"E": "E" + format_number(e_start_abs + e_move * scale, ed)}
             if replace or add:
-                out.chunks.append(edit_line(raw, replace=replace, add=add))
+                chunks.append(edit_line(raw, replace=replace, add=add))
                 out.changed += 1
                 if replace and not e_rel:
-                    out.chunks.append(f"G92 E{format_number(e_end_abs, ed)}".encode() + eol)
+                    chunks.append(f"G92 E{format_number(e_end_abs, ed)}".encode() + eol)
                     out.inserted += 1
             else:
-                out.chunks.append(raw)
+                chunks.append(raw)
             last_travel_chunk = None
             continue
         # ---- general case: chords and pieces, written as new G1 lines
-        f_text, eword, e_end_abs, e_start_abs = words()
+        f_text, _, e_end_abs, e_start_abs = words(raw, e_rel, e_move)
         out.changed += 1
-        pieces_out: list[bytes] = []
         e_acc = 0.0
         first = True
-        pos = (m["x0"], m["y0"])
+        px, py = m_x0[mi], m_y0[mi]
         comment = b" ; printability: was " + raw.rstrip(b"\r\n").strip()[:60]
         lines_new: list[bytes] = []
         for s in range(a0, a1):
-            sx0, sy0, sx1, sy1 = seg["x0"][s], seg["y0"][s], seg["x1"][s], seg["y1"][s]
-            se = seg["e"][s]
-            if s in seg_pieces:
+            sx0, sy0, sx1, sy1 = s_x0[s], s_y0[s], s_x1[s], s_y1[s]
+            se = s_e[s]
+            in_pieces = s in seg_pieces
+            if in_pieces:
                 plist = [(p.t0, p.t1, p.angle) for p in seg_pieces[s]]
             else:
-                plist = [(0.0, 1.0, seg_angle[s])]
-            scale_w = _e_scale(seg_width_laid[s], widths[s], h, e_policy, nozzle, bead_area)
+                plist = [(0.0, 1.0, s_angle[s])]
             for t0, t1, phi in plist:
                 qx0, qy0 = sx0 + t0 * (sx1 - sx0), sy0 + t0 * (sy1 - sy0)
                 qx1, qy1 = sx0 + t1 * (sx1 - sx0), sy0 + t1 * (sy1 - sy0)
-                if math.hypot(qx0 - pos[0], qy0 - pos[1]) > 1e-9:
+                if math.hypot(qx0 - px, qy0 - py) > 1e-9:
                     lines_new.append(b"G1 X" + format_number(qx0, xd).encode() + b" Y"
                                      + format_number(qy0, xd).encode())
-                    pos = (qx0, qy0)
+                    px, py = qx0, qy0
                 c_word = b""
                 if turns and math.isfinite(phi):
                     c = coord_for(phi)
-                    if format_number(c, d_ang) != format_number(cur, d_ang):
-                        c_word = (wopts.letter + format_number(c, d_ang)).encode()
-                        if not (seg_fold[s] and s not in seg_pieces
-                                and abs(c - cur) <= _planned_turn(seg_angle, s) + 1e-6):
+                    c_text = format_number(c, d_ang)
+                    if c_text != cur_text:
+                        c_word = (letter + c_text).encode()
+                        if not (s_fold[s] and not in_pieces
+                                and abs(c - cur) <= s_turn[s] + 1e-6):
                             lines_new.append(b"G1 " + c_word)
                             c_word = b""
                         out.rotary_words += 1
                         turned[layer] = turned.get(layer, 0) + 1
                         cur = c
-                if s in seg_pieces:
+                        cur_text = c_text
+                if in_pieces:
                     scale = 1.0
                     if math.isfinite(phi):
                         rel = math.degrees(math.atan2(sy1 - sy0, sx1 - sx0))
                         w_laid = nozzle.bead_width(rel, phi) if turns else float("nan")
                         scale = _e_scale(w_laid, widths[s], h, e_policy, nozzle, bead_area)
                 else:
-                    scale = scale_w
+                    scale = s_scale[s]
                 de = se * (t1 - t0) * scale
                 e_acc += de
                 if e_rel:
                     e_word = b"E" + format_number(de, ed).encode()
                 else:
                     e_word = b"E" + format_number(e_start_abs + e_acc, ed).encode()
-                words = [b"G1", b"X" + format_number(qx1, xd).encode(),
-                         b"Y" + format_number(qy1, xd).encode(), e_word]
+                ws = [b"G1", b"X" + format_number(qx1, xd).encode(),
+                      b"Y" + format_number(qy1, xd).encode(), e_word]
                 if c_word:
-                    words.append(c_word)
+                    ws.append(c_word)
                 if first and f_text is not None:
-                    words.append(f_text.encode())
+                    ws.append(f_text.encode())
                 first = False
-                lines_new.append(b" ".join(words))
-                pos = (qx1, qy1)
-        end = (m["x1"], m["y1"])
-        if math.hypot(end[0] - pos[0], end[1] - pos[1]) > 1e-9 or not lines_new:
-            words = [b"G1", b"X" + format_number(end[0], xd).encode(),
-                     b"Y" + format_number(end[1], xd).encode()]
+                lines_new.append(b" ".join(ws))
+                px, py = qx1, qy1
+        ex, ey = m_x1[mi], m_y1[mi]
+        if math.hypot(ex - px, ey - py) > 1e-9 or not lines_new:
+            ws = [b"G1", b"X" + format_number(ex, xd).encode(),
+                  b"Y" + format_number(ey, xd).encode()]
             if first and f_text is not None:
-                words.append(f_text.encode())
-            lines_new.append(b" ".join(words))
-        if m["z1"] != m["z0"] and math.isfinite(m["z1"]):
-            lines_new.append(b"G1 Z" + format_number(m["z1"], xd).encode())
-        if not e_rel and e_end_abs is not None and abs(e_acc - m["e"]) > 10 ** -ed:
+                ws.append(f_text.encode())
+            lines_new.append(b" ".join(ws))
+        if m_z1[mi] != m_z0[mi] and math.isfinite(m_z1[mi]):
+            lines_new.append(b"G1 Z" + format_number(m_z1[mi], xd).encode())
+        if not e_rel and e_end_abs is not None and abs(e_acc - e_move) > 10 ** -ed:
             lines_new.append(b"G92 E" + format_number(e_end_abs, ed).encode())
         lines_new[0] = lines_new[0] + comment
-        for ln in lines_new:
-            pieces_out.append(ln + eol)
-        out.inserted += len(pieces_out) - 1
-        out.chunks.extend(pieces_out)
+        chunks.extend(ln + eol for ln in lines_new)
+        out.inserted += len(lines_new) - 1
         last_travel_chunk = None
+    chunks.append(data[pos:])
     return out, turned
 
 
-def _planned_turn(seg_angle: np.ndarray, s: int) -> float:
-    """The turn into chord ``s`` the planner checked (from the chord before), degrees.
+def _planned_turns(seg_angle: np.ndarray) -> np.ndarray:
+    """Per chord, the turn into it the planner checked (from the chord before), degrees.
 
     A turn folded into an extruding move must be that one: near an axis limit the
-    coordinate may have to go the long way round, which was never checked.
+    coordinate may have to go the long way round, which was never checked. -1 where
+    there is none (first chord, or an orientation that is not finite).
     """
-    if s == 0 or not (math.isfinite(seg_angle[s]) and math.isfinite(seg_angle[s - 1])):
-        return -1.0
-    return abs(float(seg_angle[s] - seg_angle[s - 1]))
+    out = np.full(len(seg_angle), -1.0)
+    if len(seg_angle) > 1:
+        a, b = seg_angle[1:], seg_angle[:-1]
+        ok = np.isfinite(a) & np.isfinite(b)
+        out[1:][ok] = np.abs(a[ok] - b[ok])
+    return out
 
 
-def _needs_work(mi, first_seg, seg_pieces, seg_angle, turns, moves, seg_width_laid, widths,
-                e_policy) -> bool:
-    a0, a1 = first_seg[mi]
-    if any(s in seg_pieces for s in range(a0, a1)):
-        return True
-    if turns:
-        return True  # orientation (and maybe E) may change; decided in the rewrite
-    return False
+def _e_scales(w_laid: np.ndarray, w_plan: np.ndarray, h: np.ndarray, e_policy: str,
+              nozzle: Nozzle, bead_area) -> np.ndarray:
+    """:func:`_e_scale` of every chord at once (the same operations, so the same bits)."""
+    scale = np.ones(len(w_laid))
+    if e_policy != "width" or nozzle.is_round:
+        return scale
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a_plan = bead_area(w_plan, h)
+        a_laid = bead_area(w_laid, h)
+        ok = (np.isfinite(w_laid) & np.isfinite(w_plan)
+              & ~(np.abs(w_laid - w_plan) <= 0.01 * w_plan) & (a_plan > 0))
+    scale[ok] = a_laid[ok] / a_plan[ok]
+    return scale
 
 
 def _e_scale(w_laid: float, w_plan: float, h: float, e_policy: str, nozzle: Nozzle,
