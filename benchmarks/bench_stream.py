@@ -16,6 +16,12 @@ line waits for its ``ok`` (3 more bytes on the return wire) and the turnaround
 of both ends. Results are printed as lines/s and as a fraction of the line rate,
 side by side, from one run; no timing is asserted anywhere.
 
+The ping-pong ceiling: even with hosts and printers that cost nothing, each
+line takes its own wire time, the ``ok``'s (3 bytes) and one round trip
+through the pseudo-terminal (the kernel hands pty bytes over in a worker, some
+tens of µs each way; it is measured here first, between two processes that do
+nothing else). ``of ceiling`` divides by that.
+
 Run::
 
     python benchmarks/bench_stream.py [--lines 20000] [--baud 250000]
@@ -133,6 +139,39 @@ def _paced_responder(baud: int, advanced: bool, q, stop) -> None:
     q.put(lines)
 
 
+def _pty_echo(master: int) -> None:
+    while True:
+        data = os.read(master, 256)
+        if data == b"quit\n":
+            os._exit(0)
+        os.write(master, b"ok\n")
+
+
+def pty_round_trip(n: int = 2000) -> float:
+    """Median time for a line to cross a pty to another process and an ``ok`` to come
+    back, with both ends blocked in ``read`` (no baud pacing), s."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    ctx = multiprocessing.get_context("fork")
+    proc = ctx.Process(target=_pty_echo, args=(master,), daemon=True)
+    proc.start()
+    times = []
+    line = frame(1, "G1 X103.484 Y97.431 E0.04211")
+    for _ in range(n):
+        t0 = time.perf_counter()
+        os.write(slave, line)
+        got = b""
+        while not got.endswith(b"\n"):
+            got += os.read(slave, 256)
+        times.append(time.perf_counter() - t0)
+    os.write(slave, b"quit\n")
+    proc.join(5)
+    os.close(slave)
+    os.close(master)
+    times.sort()
+    return times[len(times) // 2]
+
+
 def open_target(kind: str, profile: str, baud: int):
     """A printer in another process: ``(port, stop-and-return-executed-lines)``."""
     if kind == "simulator":
@@ -225,6 +264,12 @@ def main(argv: list[str] | None = None) -> int:
     line_rate = args.baud / 10 / framed
     print(f"{len(lines)} lines, {framed:.1f} bytes per framed line; wire line rate at "
           f"{args.baud} baud: {line_rate:.0f} lines/s")
+    rtt = pty_round_trip()
+    line_s = framed * 10 / args.baud
+    ceiling = line_s / (line_s + 3 * 10 / args.baud + rtt)
+    print(f"pty round trip on this machine: {rtt * 1e6:.0f} µs; ping-pong ceiling "
+          f"(line + 'ok' on the wire + one pty round trip, ends that cost nothing): "
+          f"{ceiling:.1%} of the line rate")
     rows = []
     for kind in ("simulator", "paced-echo"):
         rows.append(run_printability(lines, kind, "marlin", "ping-pong", args.baud))
@@ -234,13 +279,14 @@ def main(argv: list[str] | None = None) -> int:
             if r is not None:
                 rows.append(r)
     print(f"{'host':26} {'printer':11} {'firmware':16} {'lines/s':>8} {'of wire':>8} "
-          f"{'vs ping-pong':>12} {'all once':>9}")
+          f"{'of ceiling':>10} {'vs ping-pong':>12} {'all once':>9}")
     base = {}
     for r in rows:
         rate = r["lines"] / r["seconds"]
         base.setdefault(r["target"], rate)
         print(f"{r['host']:26} {r['target']:11} {r['profile']:16} {rate:8.0f} "
-              f"{rate / line_rate:8.1%} {rate / base[r['target']]:11.2f}× "
+              f"{rate / line_rate:8.1%} {rate / line_rate / ceiling:10.1%} "
+              f"{rate / base[r['target']]:11.2f}× "
               f"{'yes' if r['correct'] else 'NO':>9}")
     return 0
 

@@ -8,12 +8,19 @@ URL schemes that pyserial does not know are looked up in the packages of
 scheme there.
 
 :class:`LineReader` replaces pyserial's ``readline``, which reads one byte per
-system call: it reads whatever is waiting and splits lines itself.
+system call: it reads whatever is waiting and splits lines itself. On a POSIX
+device or pty it waits on the descriptor itself (one ``select`` and one
+``read`` per burst): pyserial's ``read`` costs an ``ioctl`` for
+``in_waiting``, a ``select`` on two descriptors and a read of the size asked
+for, which in ping-pong streaming adds up to a measurable share of the
+wire's line time.
 """
 
 from __future__ import annotations
 
+import errno
 import os
+import select
 import time
 from typing import Any
 
@@ -90,6 +97,33 @@ class LineReader:
         self.port = port
         self._buffer = bytearray()
         self._lines: list[bytes] = []
+        self._fd: int | None = None
+        if os.name == "posix" and isinstance(port, serial.Serial):
+            try:
+                self._fd = port.fileno()
+            except (AttributeError, OSError, serial.SerialException):
+                self._fd = None
+
+    def _read_fd(self, fd: int, deadline: float) -> bytes:
+        """One burst straight from the descriptor (pyserial opened it non-blocking)."""
+        timeout = self.port.timeout if self.port.timeout is not None else 0.05
+        wait = max(0.0, min(timeout, deadline - time.monotonic()))
+        try:
+            ready, _, _ = select.select([fd], [], [], wait)
+            if not ready:
+                return b""
+            data = os.read(fd, 4096)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            if exc.errno in (errno.EINTR, errno.EAGAIN):
+                return b""
+            raise serial.SerialException(f"read failed: {exc}") from None
+        if not data:  # pyserial's words for the same condition
+            raise serial.SerialException("device reports readiness to read but returned no "
+                                         "data (device disconnected or multiple access on "
+                                         "port?)")
+        return data
 
     def readline(self, deadline: float) -> bytes | None:
         """The next complete line without its terminator, or None if ``deadline`` passes.
@@ -107,7 +141,10 @@ class LineReader:
         while True:
             if self._lines:
                 return self._lines.pop(0)
-            chunk = self.port.read(max(1, self.port.in_waiting))
+            if self._fd is not None:
+                chunk = self._read_fd(self._fd, deadline)
+            else:
+                chunk = self.port.read(max(1, self.port.in_waiting))
             if chunk:
                 self._buffer += chunk
                 if b"\n" in chunk or b"\r" in chunk:

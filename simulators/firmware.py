@@ -183,6 +183,7 @@ class Firmware:
         self.stats = Stats()
         self.now = 0.0
         self._out: list[bytearray | Stall | Disconnect] = []
+        self._out_t: list[float] = []  # firmware time at which each _out item was said
         self._pending: deque[tuple[float, bytes]] = deque()
         self._pending_off = 0
         self._wire_free = 0.0
@@ -238,18 +239,37 @@ class Firmware:
         self._pending.append((t, bytes(data)))
         self.stats.bytes_in += len(data)
 
+    def pending_until(self) -> float:
+        """Time the last byte received so far reaches the firmware (now if none waits), s."""
+        return max(self._pending[-1][0], self.now) if self._pending else self.now
+
     def take_output(self) -> list[bytes | Stall | Disconnect]:
         """What the firmware said since the last call (bytes and link markers)."""
+        return [item for _, item in self.take_output_timed()]
+
+    def take_output_timed(self) -> list[tuple[float, bytes | Stall | Disconnect]]:
+        """Like :meth:`take_output`, each item with the firmware time it was said at, s.
+
+        A transport that runs the firmware ahead of the real clock (see
+        :meth:`run_until`) holds each item back until that time.
+        """
         out, self._out = self._out, []
-        return [bytes(x) if isinstance(x, bytearray) else x for x in out]
+        times, self._out_t = self._out_t, []
+        return [(t, bytes(x) if isinstance(x, bytearray) else x)
+                for t, x in zip(times, out, strict=True)]
 
     def _emit(self, line: str) -> None:
         data = (line + "\n").encode("latin-1", "replace")
         self.stats.bytes_out += len(data)
-        if self._out and isinstance(self._out[-1], bytearray):
+        if self._out and isinstance(self._out[-1], bytearray) and self._out_t[-1] == self.now:
             self._out[-1] += data  # in place: long runs stay linear
         else:
             self._out.append(bytearray(data))
+            self._out_t.append(self.now)
+
+    def _mark(self, item: Stall | Disconnect) -> None:
+        self._out.append(item)
+        self._out_t.append(self.now)
 
     # ================================================================ time
     def next_event(self) -> float:
@@ -288,6 +308,26 @@ class Firmware:
             if not math.isfinite(t) or t > limit or t <= self.now or self.halted:
                 return  # idle until the host sends more (t <= now: nothing can move)
             self.now = max(self.now, t)
+
+    def run_until(self, t: float) -> None:
+        """Process every event up to time ``t`` (s) in order, each at its own time.
+
+        Unlike :meth:`advance`, which does at ``now`` all that is due by then,
+        this steps through the events between, so what the firmware says
+        carries the time a real board would say it. A real-clock transport
+        calls it with the arrival time of the bytes on the wire (ahead of the
+        wall clock) and holds the answers until their time: the simulator's
+        own computing then hides inside the wire time of the line, as a
+        board's does inside its UART's.
+        """
+        self.advance(self.now)
+        while not self.halted:
+            ev = self.next_event()
+            if not (self.now < ev <= t):
+                break
+            self.advance(ev)
+        if t > self.now:
+            self.advance(t)
 
     def advance(self, now: float) -> None:
         """Process everything due up to time ``now`` (s)."""
@@ -436,9 +476,9 @@ class Firmware:
                 elif f.kind == "resend-storm":
                     self._storm = max(self._storm, int(f.arg))
                 elif f.kind == "stall":
-                    self._out.append(Stall(f.arg))
+                    self._mark(Stall(f.arg))
                 elif f.kind == "disconnect":
-                    self._out.append(Disconnect())
+                    self._mark(Disconnect())
                     self.stats.resets += 1
                     self._power_on(banner=False)
                     return

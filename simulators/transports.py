@@ -16,8 +16,15 @@ that keeps its clock (simulated or real) and interprets the link markers
 - **in-process**: the ``printsim://`` pyserial URL (:mod:`simulators.urlhandler`).
 
 Baud pacing (``SimConfig.baud``): incoming bytes reach the firmware 10 bits
-per byte after they were sent (simulated or real time); the servers also
-pace what they write under the real clock.
+per byte after they were sent (simulated or real time); under the real clock
+each line the firmware says reaches the host 10 bits per byte after the
+return wire is free.
+
+Real clock: as soon as bytes come in, the firmware is run ahead to the time
+they finish arriving (:meth:`Firmware.run_until`) and its answers are held
+until the time they would reach the host. The simulator's own computing thus
+hides inside the wire time, as a board's does inside its UART's, and the
+timing a host sees is the model's, not Python's.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ import socket
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Callable
 
 from printability.errors import PrintabilityOSError
@@ -53,7 +61,9 @@ class Link:
         self.lock = threading.RLock()
         self._t0 = time.monotonic()
         self._stall_until = 0.0
-        self._held: list[bytes | Stall | Disconnect] = []
+        # what the firmware said, with the firmware time it said it at (real clock: s since _t0)
+        self._held: deque[tuple[float, bytes | Stall | Disconnect]] = deque()
+        self._out_free = 0.0  # when the return wire is free (real clock), s since _t0
         self.disconnected = False
         self.on_record: Callable[[], None] | None = None
 
@@ -68,7 +78,8 @@ class Link:
         if time.monotonic() < self._stall_until:
             return  # a stalled firmware does nothing at all
         if self.real:
-            self.firmware.advance(self._now())
+            fw = self.firmware
+            fw.run_until(max(self._now(), fw.pending_until()))
         else:
             self.firmware.run_sim()
 
@@ -78,6 +89,7 @@ class Link:
             self.disconnected = False
             self._held.clear()
             self._stall_until = 0.0
+            self._out_free = 0.0
             self.firmware.connect()
             self._pump()
 
@@ -89,24 +101,45 @@ class Link:
             self.firmware.receive(data, self._now() if self.real else None)
             self._pump()
 
+    def _take(self) -> None:
+        for t, item in self.firmware.take_output_timed():
+            if isinstance(item, bytes) and self.real and self.config.baud:
+                # line by line: a host reads the first line before the last is on the wire
+                self._held.extend((t, line) for line in item.splitlines(keepends=True))
+            else:
+                self._held.append((t, item))
+
+    def _due(self, t: float, item: bytes | Stall | Disconnect) -> float:
+        """Real clock: when ``item``, said at ``t``, has reached the host (s since _t0)."""
+        if isinstance(item, bytes) and self.config.baud:
+            return max(t, self._out_free) + len(item) * 10.0 / self.config.baud
+        return t
+
     def read_available(self) -> bytes:
-        """Bytes the firmware has said, up to the next stall or disconnect marker."""
+        """Bytes that have reached the host, up to the next stall or disconnect marker."""
         with self.lock:
             self._pump()
-            self._held.extend(self.firmware.take_output())
+            self._take()
             out = bytearray()
+            now = self._now()
             while self._held and time.monotonic() >= self._stall_until:
-                item = self._held[0]
+                t, item = self._held[0]
+                if self.real:
+                    due = self._due(t, item)
+                    if due > now:
+                        break
                 if isinstance(item, bytes):
                     out += item
-                    self._held.pop(0)
+                    self._held.popleft()
+                    if self.real:
+                        self._out_free = due
                 elif isinstance(item, Stall):
-                    self._held.pop(0)
+                    self._held.popleft()
                     self._stall_until = time.monotonic() + item.seconds
                 else:  # Disconnect: what follows belongs to the next connection
                     if out:
                         break
-                    self._held.pop(0)
+                    self._held.popleft()
                     self.disconnected = True
                     break
             return bytes(out)
@@ -119,7 +152,11 @@ class Link:
                 return stall
             if not self.real:
                 return 0.05
-            return max(0.0, min(self.firmware.next_event() - self._now(), 0.05))
+            now = self._now()
+            t = self.firmware.next_event()
+            if self._held:
+                t = min(t, self._due(*self._held[0]))
+            return max(0.0, min(t - now, 0.05))
 
     def close(self) -> None:
         """Finish: let the planner drain (for the print time) and write the record if asked."""
@@ -127,21 +164,6 @@ class Link:
             self.firmware.drain()
             if self.config.record:
                 self.firmware.write_record()
-
-
-class _Pacer:
-    """Holds back writes to ``baud`` bits per second (10 bits per byte), real time."""
-
-    def __init__(self, baud: int | None) -> None:
-        self.baud = baud
-        self.free = 0.0
-
-    def delay(self, n: int) -> float:
-        if not self.baud:
-            return 0.0
-        now = time.monotonic()
-        self.free = max(self.free, now) + n * 10.0 / self.baud
-        return max(0.0, self.free - now)
 
 
 class _Server:
@@ -184,6 +206,10 @@ class _Server:
         self.stop()
 
 
+_SPIN = 0.0003  # s: how long before an answer is due the pty server stops sleeping
+_LISTEN = 0.0005  # s: how long after an answer it spins for the host's next line
+
+
 class PtyServer(_Server):
     """The printer on a pseudo-terminal; :attr:`path` is the port hosts open."""
 
@@ -204,7 +230,6 @@ class PtyServer(_Server):
                 os.close(self.master)
                 raise PrintabilityOSError(f"{symlink}: cannot create the port link "
                                           f"({exc.strerror})") from None
-        self._pacer = _Pacer(link.config.baud if link.real else None)
         # True while a host has the port open. A close and reopen faster than the poll
         # interval (~10 ms) is not seen as a reset.
         self.connected = False
@@ -212,8 +237,18 @@ class PtyServer(_Server):
     def _run(self) -> None:
         link, poller = self.link, select.poll()
         poller.register(self.master, select.POLLIN)
+        listen_until = 0.0
         while not self._stop.is_set():
-            events = poller.poll(max(link.wait_time(), 0.001) * 1000)
+            wait = link.wait_time()
+            if wait < 0.002 or time.monotonic() < listen_until:
+                # poll() counts whole milliseconds and a sleeping thread wakes up ~0.1 ms
+                # late. An answer due sooner is timed by select(), woken early, then spun
+                # for; right after an answer the host's next line is spun for too (a
+                # board's UART interrupt has no wake-up latency).
+                if time.monotonic() >= listen_until:
+                    select.select([self.master], [], [], max(wait - _SPIN, 0.0))
+                wait = 0.0
+            events = poller.poll(wait * 1000)
             hup = any(ev & select.POLLHUP for _, ev in events)
             if hup:
                 self.connected = False
@@ -236,6 +271,7 @@ class PtyServer(_Server):
                 out += link.read_available()
             if out:
                 self._write(out)
+                listen_until = time.monotonic() + _LISTEN
 
     def _write(self, data: bytes) -> None:
         view = memoryview(data)
@@ -250,9 +286,6 @@ class PtyServer(_Server):
                     return  # the host closed the port
                 raise
             view = view[n:]
-            d = self._pacer.delay(n)
-            if d:
-                time.sleep(d)
 
     def _close(self) -> None:
         try:
@@ -279,7 +312,6 @@ class TcpServer(_Server):
         self.sock.listen(1)
         self.port = self.sock.getsockname()[1]
         self.url = f"socket://127.0.0.1:{self.port}"
-        self._pacer = _Pacer(link.config.baud if link.real else None)
 
     def _run(self) -> None:
         link = self.link
@@ -311,9 +343,6 @@ class TcpServer(_Server):
                     conn.sendall(out)
                 except OSError:
                     return
-                d = self._pacer.delay(len(out))
-                if d:
-                    time.sleep(d)
             if link.disconnected:
                 return  # drop the connection; the next one is greeted after a reset
 

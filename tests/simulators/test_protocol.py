@@ -134,6 +134,22 @@ def test_baud_pacing_moves_the_simulated_clock(baud):
     assert len(fw.executed) == 40
 
 
+def test_run_until_says_each_answer_at_the_time_its_line_arrives():
+    baud = 250000
+    fw = _fw(baud=baud, clock="real")
+    lines = [framed(1, "M400"), framed(2, "G4 P10"), framed(3, "M400")]
+    for line in lines:  # one write each, all at t = 0: they queue on the wire
+        fw.receive(line, now=0.0)
+    arrive = [sum(map(len, lines[:k + 1])) * 10 / baud for k in range(3)]
+    fw.run_until(fw.pending_until())  # ahead of any wall clock: up to line 3's arrival
+    assert fw.now == pytest.approx(arrive[2])
+    first = fw.take_output_timed()
+    assert first == [(pytest.approx(arrive[0]), b"ok\n")]  # line 2 is still dwelling
+    fw.run_until(1.0)
+    # line 2 dwells 10 ms: its ok, and line 3's (queued behind it), at the dwell's end
+    assert fw.take_output_timed() == [(pytest.approx(arrive[1] + 0.010), b"ok\nok\n")]
+
+
 @pytest.mark.parametrize(("cmd", "busy"), [("G4 S5", 2), ("G4 P1000", 0), ("G28", 2)])
 def test_busy_while_blocked(cmd, busy):
     fw = _fw(firmware={"homing_time": 5.0})

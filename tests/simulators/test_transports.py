@@ -60,6 +60,30 @@ def test_pty_banner_commands_and_reset_on_open(clock):
     assert link.firmware.stats.resets >= 2
 
 
+def test_real_clock_answers_no_sooner_than_the_wire_carries_line_and_ok():
+    """Under the real clock the firmware runs ahead to the line's arrival and its ``ok``
+    is held until it has crossed the return wire: never early, whatever Python costs."""
+    baud = 9600  # slow, so the bound is far above scheduling noise
+    link = Link(make_config(profile="marlin", clock="real", baud=baud))
+    link.connect()
+    banner = b""
+    deadline = time.monotonic() + 5
+    while not banner.endswith(link.firmware.fw.banner[-1].encode() + b"\n"):
+        assert time.monotonic() < deadline, banner
+        time.sleep(0.005)
+        banner += link.read_available()
+    line = framed(1, "M400")
+    t0 = time.monotonic()
+    link.feed(line)
+    assert link.firmware.executed and link.read_available() == b""  # run ahead, held back
+    got = b""
+    while not got.endswith(b"\n") and time.monotonic() < t0 + 5:
+        time.sleep(max(link.wait_time(), 0.0002))
+        got += link.read_available()
+    assert got == b"ok\n"
+    assert time.monotonic() - t0 >= (len(line) + len(got)) * 10 / baud
+
+
 def test_tcp_socket_url_and_disconnect_fault():
     link = Link(make_config(faults="disconnect@3"))
     with TcpServer(link) as srv:
