@@ -28,6 +28,7 @@ once per layer target.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numba
@@ -35,7 +36,8 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-__all__ = ["EPS", "boundary_grid", "chain_nearest", "covers_rings", "swept_kernel"]
+__all__ = ["EPS", "boundary_grid", "chain_nearest", "covers_rings", "first_fits",
+           "smooth_chain", "swept_kernel"]
 
 EPS = 1e-9
 """Margin (mm) of the half-plane tests against rounding of the ring's vertices."""
@@ -195,10 +197,181 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
         out[i] = state
 
 
+@numba.njit(cache=True)
+def _edges_state(cu, su, h, bx0, by0, bx1, by1, ex0, ey0, ex1, ey1, start, items, x0, y0, cell,
+                 nx, ny, eps, order):  # pragma: no cover
+    """One footprint of :func:`_decide`: 0 if ∂G enters it, -1 if ∂G grazes it, else 1.
+
+    ``bx0``… is the ring's bounding box already grown by ``eps``.
+    """
+    ix0 = min(max(int((bx0 - x0) // cell), 0), nx - 1)
+    ix1 = min(max(int((bx1 - x0) // cell), 0), nx - 1)
+    iy0 = min(max(int((by0 - y0) // cell), 0), ny - 1)
+    iy1 = min(max(int((by1 - y0) // cell), 0), ny - 1)
+    state = 1
+    for iy in range(iy0, iy1 + 1):
+        for ix in range(ix0, ix1 + 1):
+            c = iy * nx + ix
+            for q in range(start[c], start[c + 1]):
+                e = items[q]
+                ax = ex0[e]
+                ay = ey0[e]
+                bx = ex1[e]
+                by = ey1[e]
+                if max(ax, bx) < bx0 or min(ax, bx) > bx1 or max(ay, by) < by0 \
+                        or min(ay, by) > by1:
+                    continue
+                if _clip(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
+                    continue
+                length = math.hypot(bx - ax, by - ay)
+                if _clip(ax, ay, bx, by, cu, su, h, -eps, order) * length > eps:
+                    return 0
+                state = -1
+    return state
+
+
+@numba.njit(cache=True)
+def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # pragma: no cover
+    """Whether a point at least ~``EPS`` away from ∂G lies in G (parity of a ray's crossings).
+
+    The ray runs along the point's grid row towards the nearer side of the grid;
+    an edge listed in several cells of the row is counted in the first cell the
+    ray reaches. Edges meet the ray under the half-open rule (one end strictly
+    above), so a ray through a vertex counts it once; the crossing abscissa is
+    only compared with the point's, which is far from the edge, so its rounding
+    cannot flip the count.
+    """
+    iy = min(max(int((py - y0) // cell), 0), ny - 1)
+    ix = min(max(int((px - x0) // cell), 0), nx - 1)
+    right = nx - 1 - ix <= ix
+    lo = ix if right else 0
+    hi = nx - 1 if right else ix
+    inside = False
+    for c in range(iy * nx + lo, iy * nx + hi + 1):
+        col = c - iy * nx
+        for q in range(start[c], start[c + 1]):
+            e = items[q]
+            ax = ex0[e]
+            ay = ey0[e]
+            bx = ex1[e]
+            by = ey1[e]
+            if (ay > py) == (by > py):
+                continue
+            if right:
+                first = max(ix, min(max(int((min(ax, bx) - x0) // cell), 0), nx - 1))
+            else:
+                first = min(ix, min(max(int((max(ax, bx) - x0) // cell), 0), nx - 1))
+            if col != first:
+                continue  # counted in another cell of the row
+            xc = ax + (py - ay) * (bx - ax) / (by - ay)
+            if (xc > px) if right else (xc < px):
+                inside = not inside
+    return inside
+
+
+@numba.njit(cache=True)
+def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gseg, c0, s0, c1, s1,
+               k, gpos, gend, cb, sb, det, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx,
+               ny, eps, order, out_idx, out_state):  # pragma: no cover
+    """Per group of candidates, the first whose swept footprint lies inside G.
+
+    Candidate ``q`` sweeps the pieces (``kind`` 0 ellipse, 1 rectangle, with
+    semi-axes ``pa``, ``pb``, centre ``pcx``, ``pcy``, rotation cos/sin
+    ``prc``, ``prs``) along segment ``seg[q]`` (or ``gseg[g]`` for all the
+    candidates of group ``g`` when ``gseg`` is non-empty: groups may then share
+    candidates) (``p0``, ``p1``, normal ``cn``,
+    ``sn``, ``scale`` if non-empty) at the orientation ``c0[q]``, ``s0[q]``
+    (turning to ``c1``, ``s1`` with factor ``k`` when ``k`` is non-empty).
+    Group ``g`` tries ``gpos[g] … gend[g] - 1`` in order and stops at the
+    first that fits (``out_state`` 1, ``out_idx`` its index), at the first
+    ∂G grazes (``out_state`` -1: shapely decides, the caller resumes after it)
+    or finds none (``out_state`` 0, ``out_idx`` -1).
+
+    Each footprint gets the decision of :func:`covers_rings` on the ring of
+    :func:`swept_kernel`: the half-planes are computed by the same code, the
+    edge test is :func:`_decide`'s, and where no edge of ∂G comes within
+    ``eps`` of the footprint (the only case where the footprint can lie inside)
+    one of its vertices is located in G by :func:`_inside`, at least ``eps``
+    from ∂G: the answer ``shapely.intersects_xy`` gives. Nothing is stored per
+    footprint, which is what made one call per candidate expensive.
+    """
+    d = len(cb)
+    turning = len(k) > 0
+    scaled = len(scale) > 0
+    cu = np.empty(d)
+    su = np.empty(d)
+    w = np.empty(d)
+    h = np.empty(d)
+    last = -1
+    for g in range(len(gpos)):
+        out_idx[g] = -1
+        out_state[g] = 0
+        for q in range(gpos[g], gend[g]):
+            m = gseg[g] if len(gseg) else seg[q]
+            if m != last:  # the candidates of a move share its directions
+                _directions(cn[m], sn[m], cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], cu,
+                            su, w)
+                last = m
+            state = 1
+            for p in range(len(kind)):
+                _offsets(kind[p], pa[p], pb[p], pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q],
+                         c1[q] if turning else 0.0, s1[q] if turning else 0.0,
+                         k[q] if turning else 1.0, turning, scale[m] if scaled else 1.0, scaled,
+                         cu, su, w, h)
+                # the bounding box of the ring's vertices as swept_kernel computes them
+                # ((numerator) / det each): dividing by det > 0 keeps the order of the
+                # rounded values, so the extreme numerators give the extreme vertices
+                nx0 = h[0] * su[1] - h[1] * su[0]
+                ny0 = cu[0] * h[1] - cu[1] * h[0]
+                mx0 = nx0
+                mx1 = nx0
+                my0 = ny0
+                my1 = ny0
+                for j in range(1, d):
+                    jn = j + 1 if j + 1 < d else 0
+                    x = h[j] * su[jn] - h[jn] * su[j]
+                    y = cu[j] * h[jn] - cu[jn] * h[j]
+                    mx0 = min(mx0, x)
+                    mx1 = max(mx1, x)
+                    my0 = min(my0, y)
+                    my1 = max(my1, y)
+                vx0 = nx0 / det
+                vy0 = ny0 / det
+                st = _edges_state(cu, su, h, mx0 / det - eps, my0 / det - eps, mx1 / det + eps,
+                                  my1 / det + eps, ex0, ey0, ex1, ey1, start, items, x0, y0,
+                                  cell, nx, ny, eps, order)
+                if st == 1 and not _inside(vx0, vy0, ex0, ey0, ex1, ey1, start, items, x0, y0,
+                                           cell, nx, ny):
+                    st = 0
+                if st == 0:
+                    state = 0
+                    break
+                if st == -1:
+                    state = -1  # still 0 if another piece pokes out
+            if state != 0:
+                out_idx[g] = q
+                out_state[g] = state
+                break
+
+
+@functools.lru_cache(maxsize=8)
 def _order(d: int) -> np.ndarray:
-    """Every direction once: 0 and d/2 (normal to the move), d/4 and 3d/4 (along it) first."""
-    first = [0, d // 2, d // 4, (3 * d) // 4]
-    return np.array(list(dict.fromkeys([*first, *range(d)])), dtype=np.int64)
+    """Every direction once, coarse to fine: 0 and d/2 (normal to the move), d/4 and 3d/4
+    (along it), then the diagonals, then halfway between those…
+
+    An edge outside the footprint is usually cut off by a half-plane of the coarsest
+    polygon around it: visiting the directions so, it leaves after two or three instead
+    of a third of them on average when they are taken in turn.
+    """
+    out = [0]
+    k = d
+    while k > 1:
+        k //= 2
+        out += [j for j in range(k, d, 2 * k) if j % k == 0]
+    head = [0, d // 2, d // 4, (3 * d) // 4]
+    order = np.array(list(dict.fromkeys([*head, *out, *range(d)])), dtype=np.int64)
+    order.setflags(write=False)
+    return order
 
 
 def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np.ndarray,
@@ -240,6 +413,52 @@ def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np
 
 
 @numba.njit(cache=True)
+def _directions(cn, sn, cb, sb, p0x, p0y, p1x, p1y, cu, su, w):  # pragma: no cover
+    """Directions ``cu``, ``su`` of a move's half-planes and the move's extent ``w`` along them.
+
+    Independent of the orientation: the candidates of one move share them.
+    """
+    for j in range(len(cb)):
+        u = cn * cb[j] - sn * sb[j]
+        v = sn * cb[j] + cn * sb[j]
+        cu[j] = u
+        su[j] = v
+        w[j] = max(u * p0x + v * p0y, u * p1x + v * p1y)
+
+
+@numba.njit(cache=True)
+def _offsets(kind, a, b, cx, cy, rc, rs, c0, s0, c1, s1, k, turning, scale, scaled, cu, su, w,
+             h):  # pragma: no cover
+    """Offsets ``h`` of the half-planes of an ellipse (kind 0) or rectangle (kind 1) swept.
+
+    The swept_kernel's arithmetic, shared with the fused tests so that their
+    half-planes are those of the ring, to the last bit.
+    """
+    for j in range(len(cu)):
+        u = cu[j]
+        v = su[j]
+        hv = 0.0
+        for end in range(2 if turning else 1):
+            c = c0 if end == 0 else c1
+            s = s0 if end == 0 else s1
+            ux = c * u + s * v  # u in the nozzle frame: R(-phi) u
+            uy = -s * u + c * v
+            base = ux * cx + uy * cy
+            vx = rc * ux + rs * uy  # u in the orifice's own axes
+            vy = -rs * ux + rc * uy
+            if kind == 0:
+                hh = base + math.sqrt((a * vx) ** 2 + (b * vy) ** 2)
+            else:
+                hh = base + a * abs(vx) + b * abs(vy)
+            hv = hh if end == 0 else max(hv, hh)
+        if turning:
+            hv = hv * k
+        if scaled:
+            hv = hv * scale
+        h[j] = hv + w[j]
+
+
+@numba.njit(cache=True)
 def swept_kernel(kind, a, b, cx, cy, rc, rs, p0, p1, cn, sn, cb, sb, c0, s0, c1, s1, k, scale,
                  det, cu, su, h, ring):  # pragma: no cover
     """Half-plane offsets ``h`` and ring of an ellipse (kind 0) or rectangle (kind 1) swept.
@@ -255,32 +474,13 @@ def swept_kernel(kind, a, b, cx, cy, rc, rs, p0, p1, cn, sn, cb, sb, c0, s0, c1,
     n, d = cu.shape
     turning = len(k) > 0
     scaled = len(scale) > 0
+    w = np.empty(d)
     for i in range(n):
-        for j in range(d):
-            u = cn[i] * cb[j] - sn[i] * sb[j]
-            v = sn[i] * cb[j] + cn[i] * sb[j]
-            cu[i, j] = u
-            su[i, j] = v
-            hv = 0.0
-            for end in range(2 if turning else 1):
-                c = c0[i] if end == 0 else c1[i]
-                s = s0[i] if end == 0 else s1[i]
-                ux = c * u + s * v  # u in the nozzle frame: R(-phi) u
-                uy = -s * u + c * v
-                base = ux * cx + uy * cy
-                vx = rc * ux + rs * uy  # u in the orifice's own axes
-                vy = -rs * ux + rc * uy
-                if kind == 0:
-                    hh = base + math.sqrt((a * vx) ** 2 + (b * vy) ** 2)
-                else:
-                    hh = base + a * abs(vx) + b * abs(vy)
-                hv = hh if end == 0 else max(hv, hh)
-            if turning:
-                hv = hv * k[i]
-            if scaled:
-                hv = hv * scale[i]
-            hv = hv + max(u * p0[i, 0] + v * p0[i, 1], u * p1[i, 0] + v * p1[i, 1])
-            h[i, j] = hv
+        _directions(cn[i], sn[i], cb, sb, p0[i, 0], p0[i, 1], p1[i, 0], p1[i, 1], cu[i], su[i],
+                    w)
+        _offsets(kind, a, b, cx, cy, rc, rs, c0[i], s0[i], c1[i] if turning else 0.0,
+                 s1[i] if turning else 0.0, k[i] if turning else 1.0, turning,
+                 scale[i] if scaled else 1.0, scaled, cu[i], su[i], w, h[i])
         for j in range(d):
             jn = j + 1 if j + 1 < d else 0
             ring[i, j, 0] = (h[i, j] * su[i, jn] - h[i, jn] * su[i, j]) / det
@@ -315,3 +515,31 @@ def chain_nearest(c1, c2, per, previous):  # pragma: no cover
         out[i] = best
         prev = best
     return out
+
+
+@numba.njit(cache=True)
+def smooth_chain(angle, c1, c2, searched, reach, per, previous):  # pragma: no cover
+    """The proposals of :func:`printability.motion.orientation._smooth`, compiled.
+
+    Per move (NaN moves skipped and kept): a searched move's orientation (or any, on
+    a limited axis) unwrapped nearest the last pick; otherwise, of ``c1`` and ``c2``,
+    the equivalent nearest it. ``np.rint`` rounds half to even like Python's
+    ``round``, so the picks are those of the Python loop.
+    """
+    n = len(angle)
+    prop = angle.copy()
+    prev = previous
+    for i in range(n):
+        a = angle[i]
+        if a != a:  # NaN: split or dropped move
+            continue
+        if searched[i] or reach:
+            best = a + per * np.rint((prev - a) / per)
+        else:
+            best = c1[i] + per * np.rint((prev - c1[i]) / per)
+            near = c2[i] + per * np.rint((prev - c2[i]) / per)
+            if abs(near - prev) < abs(best - prev):
+                best = near
+        prop[i] = best
+        prev = best
+    return prop

@@ -36,7 +36,16 @@ from shapely.geometry.base import BaseGeometry
 from printability.errors import InputError
 from printability.geometry import polygons_of
 from printability.machine import Machine
-from printability.motion.fastfit import chain_nearest, covers_rings, swept_kernel
+from printability.motion.fastfit import (
+    EPS,
+    _order,
+    boundary_grid,
+    chain_nearest,
+    covers_rings,
+    first_fits,
+    smooth_chain,
+    swept_kernel,
+)
 from printability.nozzle import Nozzle
 
 __all__ = [
@@ -230,6 +239,31 @@ def swept_rings(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.nd
                   directions=directions)[0]
 
 
+_EMPTY = np.zeros(0)
+
+
+def _piece_params(piece: ConvexPiece) -> tuple[int, float, float, float, float, float, float]:
+    """Kind (0 ellipse, 1 rectangle), semi-axes, centre and rotation cos/sin of a piece."""
+    r = math.radians(piece.rotation)
+    return (0 if piece.kind == "ellipse" else 1, float(piece.a), float(piece.b),
+            float(piece.center[0]), float(piece.center[1]), math.cos(r), math.sin(r))
+
+
+def _angle_trig(angle, angle_end, n: int):
+    """cos/sin of the orientations (and of the end ones, with the bulge factor k), per row.
+
+    Numpy's elementwise results depend on the values only, so rows computed in
+    any batch are the same bits: the fused tests and the rings agree.
+    """
+    phi = np.deg2rad(np.asarray(angle, dtype=float)).reshape(n)
+    if angle_end is None:
+        return np.cos(phi), np.sin(phi), _EMPTY, _EMPTY, _EMPTY
+    phi1 = np.deg2rad(np.asarray(angle_end, dtype=float)).reshape(n)
+    d = np.abs(np.asarray(angle_end, dtype=float) - angle)
+    k = 1.0 / np.cos(np.deg2rad(np.minimum(d, 120.0)) / 2.0)
+    return np.cos(phi), np.sin(phi), np.cos(phi1), np.sin(phi1), np.ascontiguousarray(k)
+
+
 def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
            kernel=True):
     """Rings and their half-planes: ring (n, d + 1, 2), and u = (cu, su), h of shape (n, d).
@@ -245,27 +279,18 @@ def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
     base = np.arange(directions) * (2 * math.pi / directions)
     det = math.sin(2 * math.pi / directions)
     if kernel and piece.kind in ("ellipse", "rect"):
-        r = math.radians(piece.rotation)
-        empty = np.zeros(0)
-        phi = np.deg2rad(np.asarray(angle, dtype=float)).reshape(n)
-        if angle_end is not None:
-            phi1 = np.deg2rad(np.asarray(angle_end, dtype=float)).reshape(n)
-            d = np.abs(np.asarray(angle_end, dtype=float) - angle)
-            k = 1.0 / np.cos(np.deg2rad(np.minimum(d, 120.0)) / 2.0)
-            c1, s1 = np.cos(phi1), np.sin(phi1)
-        else:
-            k = c1 = s1 = empty
-        sc = empty if scale is None else np.broadcast_to(np.asarray(scale, dtype=float),
-                                                         (n,)).copy()
+        c0, s0, c1, s1, k = _angle_trig(angle, angle_end, n)
+        sc = _EMPTY if scale is None else np.broadcast_to(np.asarray(scale, dtype=float),
+                                                          (n,)).copy()
         cu = np.empty((n, directions))
         su = np.empty((n, directions))
         h = np.empty((n, directions))
         ring = np.empty((n, directions + 1, 2))
-        swept_kernel(0 if piece.kind == "ellipse" else 1, float(piece.a), float(piece.b),
-                     float(piece.center[0]), float(piece.center[1]), math.cos(r), math.sin(r),
+        kind, a, b, cx, cy, rc, rs = _piece_params(piece)
+        swept_kernel(kind, a, b, cx, cy, rc, rs,
                      np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
                      np.cos(normal), np.sin(normal), np.cos(base), np.sin(base),
-                     np.cos(phi), np.sin(phi), c1, s1, k, sc, det, cu, su, h, ring)
+                     c0, s0, c1, s1, k, sc, det, cu, su, h, ring)
         return ring, cu, su, h
     cn, sn = np.cos(normal)[:, None], np.sin(normal)[:, None]
     cb, sb = np.cos(base)[None, :], np.sin(base)[None, :]
@@ -304,16 +329,30 @@ def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1
     """Whether each move's swept footprint lies inside ``target`` (prepared, grown).
 
     ``fast`` decides what it can with the exact tests of
-    :func:`printability.motion.fastfit.covers_rings` and leaves only the rest
-    to ``shapely.covers``; ``fast=False`` tests every footprint with
-    ``shapely.covers`` (the reference the fast path must agree with).
+    :func:`printability.motion.fastfit.first_fits` (ellipses and rectangles:
+    sweep, edge test and point location fused, nothing stored per footprint)
+    or :func:`printability.motion.fastfit.covers_rings` (other pieces) and
+    leaves only the rest to ``shapely.covers``; ``fast=False`` tests every
+    footprint with ``shapely.covers`` (the reference the fast path must agree
+    with).
 
     Returns a boolean array of shape (n,).
     """
     n = len(p0)
-    ok = np.ones(n, dtype=bool)
     if n == 0:
-        return ok
+        return np.ones(0, dtype=bool)
+    if fast and _fused(pieces):
+        every = np.arange(n)
+        return _first_fit(target, pieces, p0, p1, scale, every, angle, angle_end, every,
+                          every + 1) >= 0
+    return _fits_rings(target, pieces, p0, p1, angle, angle_end=angle_end, scale=scale,
+                       fast=fast)
+
+
+def _fits_rings(target, pieces, p0, p1, angle, *, angle_end=None, scale=None, fast=True):
+    """:func:`fits` through the rings: any convex piece, and the reference of the fused path."""
+    n = len(p0)
+    ok = np.ones(n, dtype=bool)
     for piece in pieces:
         idx = np.flatnonzero(ok)
         if idx.size == 0:
@@ -326,6 +365,121 @@ def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1
         else:
             ok[idx] = shapely.covers(target, shapely.polygons(rings))
     return ok
+
+
+def _first_fit_reference(target, pieces, p0, p1, scale, seg, angle, gpos, gend,
+                         fast=False) -> np.ndarray:
+    """:func:`_first_fit` the slow way: every candidate through the rings of :func:`fits`."""
+    ok = _fits_rings(target, pieces, p0[seg], p1[seg], angle,
+                     scale=None if scale is None else scale[seg], fast=fast)
+    out = np.full(len(gpos), -1, dtype=np.int64)
+    for g, (lo, hi) in enumerate(zip(gpos.tolist(), gend.tolist(), strict=True)):
+        hit = np.flatnonzero(ok[lo:hi])
+        if hit.size:
+            out[g] = lo + hit[0]
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _base_directions(directions: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """cos, sin of the base directions (as :func:`_swept` computes them) and det."""
+    base = np.arange(directions) * (2 * math.pi / directions)
+    cb, sb = np.cos(base), np.sin(base)
+    cb.setflags(write=False)
+    sb.setflags(write=False)
+    return cb, sb, math.sin(2 * math.pi / directions)
+
+
+@functools.lru_cache(maxsize=32)
+def _pieces_arrays(pieces: tuple[ConvexPiece, ...]) -> tuple[np.ndarray, ...]:
+    """:func:`_piece_params` of every piece, as arrays (kind, a, b, cx, cy, rc, rs)."""
+    params = [_piece_params(p) for p in pieces]
+    out = (np.array([q[0] for q in params], dtype=np.int64),
+           *(np.array([q[j] for q in params], dtype=float) for j in range(1, 7)))
+    for v in out:
+        v.setflags(write=False)
+    return out
+
+
+def _fused(pieces: Sequence[ConvexPiece]) -> bool:
+    """Whether :func:`first_fits` sweeps these pieces (ellipses and rectangles)."""
+    return all(p.kind in ("ellipse", "rect") for p in pieces)
+
+
+def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
+               directions: int = 64, *, gseg=None, trig=None) -> np.ndarray:
+    """Per group of candidates, the index of the first that fits (-1: none).
+
+    Candidate ``q`` is segment ``seg[q]`` (of ``p0``, ``p1``, ``scale``) swept at
+    ``angle[q]`` (turning to ``angle_end[q]``); group ``g`` holds candidates
+    ``gpos[g] … gend[g] - 1``, tried in order. With ``gseg``, every candidate of
+    group ``g`` is swept along segment ``gseg[g]`` instead (groups may share
+    candidates); ``trig`` is ``(cos, sin)`` of the angles in radians when already
+    known. The answer per candidate is :func:`fits`'s: footprints ∂G grazes go
+    to :func:`covers_rings` with the rings of the same half-planes, and the group
+    resumes after a refusal.
+    """
+    ngroups = len(gpos)
+    result = np.full(ngroups, -1, dtype=np.int64)
+    if ngroups == 0:
+        return result
+    p0 = np.ascontiguousarray(p0, dtype=float)
+    p1 = np.ascontiguousarray(p1, dtype=float)
+    normal = np.arctan2(p1[:, 0] - p0[:, 0], -(p1[:, 1] - p0[:, 1]))
+    cn, sn = np.cos(normal), np.sin(normal)
+    cb, sb, det = _base_directions(directions)
+    if trig is None:
+        c0, s0, c1, s1, k = _angle_trig(angle, angle_end, len(angle))
+    else:
+        c0, s0 = trig
+        c1 = s1 = k = _EMPTY
+    sc = _EMPTY if scale is None else np.ascontiguousarray(
+        np.broadcast_to(np.asarray(scale, dtype=float), (len(p0),)))
+    kind, pa, pb, pcx, pcy, prc, prs = _pieces_arrays(tuple(pieces))
+    if gseg is None:
+        gseg = np.zeros(0, dtype=np.int64)
+        seg = np.ascontiguousarray(seg, dtype=np.int64)
+    else:
+        gseg = np.ascontiguousarray(gseg, dtype=np.int64)
+        seg = np.zeros(0, dtype=np.int64)
+    grid = boundary_grid(target)
+    gpos = np.array(gpos, dtype=np.int64)
+    gend = np.ascontiguousarray(gend, dtype=np.int64)
+    order = _order(directions)
+    groups = np.arange(ngroups)
+    while groups.size:
+        out_idx = np.empty(groups.size, dtype=np.int64)
+        out_state = np.empty(groups.size, dtype=np.int8)
+        first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, sc, seg,
+                   gseg[groups] if len(gseg) else gseg, c0, s0, c1, s1, k, gpos[groups],
+                   gend[groups], cb, sb, det, *grid, EPS, order, out_idx, out_state)
+        fit = out_state == 1
+        result[groups[fit]] = out_idx[fit]
+        und = np.flatnonzero(out_state == -1)
+        if und.size == 0:
+            break
+        # ∂G grazes these footprints: the rings of the same half-planes, decided exactly
+        q = out_idx[und]
+        m = gseg[groups[und]] if len(gseg) else seg[q]
+        ok = np.ones(q.size, dtype=bool)
+        for piece in pieces:
+            kp, a, b, cx, cy, rc, rs = _piece_params(piece)
+            nq = q.size
+            cu = np.empty((nq, directions))
+            su = np.empty((nq, directions))
+            h = np.empty((nq, directions))
+            ring = np.empty((nq, directions + 1, 2))
+            turning = len(k) > 0
+            swept_kernel(kp, a, b, cx, cy, rc, rs, p0[m], p1[m], cn[m], sn[m], cb, sb, c0[q],
+                         s0[q], c1[q] if turning else _EMPTY, s1[q] if turning else _EMPTY,
+                         k[q] if turning else _EMPTY, sc[m] if len(sc) else _EMPTY, det, cu,
+                         su, h, ring)
+            ok &= covers_rings(target, ring, cu, su, h)
+        result[groups[und[ok]]] = q[ok]
+        rest = und[~ok]
+        gpos[groups[rest]] = q[~ok] + 1
+        groups = groups[rest]
+    return result
 
 
 @functools.lru_cache(maxsize=32)
@@ -374,6 +528,22 @@ def _reachable(phi: np.ndarray, machine: Machine, period: float) -> np.ndarray:
     return phi + k * period <= hi + 1e-9
 
 
+@functools.lru_cache(maxsize=8)
+def _half_turn_distance_cached(beta: bytes) -> np.ndarray:
+    b = np.frombuffer(beta)
+    out = np.abs((b[None, :] - b[:, None] + 90.0) % 180.0 - 90.0)
+    out.setflags(write=False)
+    return out
+
+
+def _half_turn_distance(beta: np.ndarray) -> np.ndarray:
+    """Row j: distance of every ``beta`` from ``beta[j]`` modulo 180°, degrees (cached).
+
+    The same operations, element by element, as computing it for each move's pick.
+    """
+    return _half_turn_distance_cached(np.ascontiguousarray(beta, dtype=float).tobytes())
+
+
 def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: Nozzle,
                            machine: Machine, *, previous: float = 0.0,
                            return_candidates: bool = False):
@@ -400,7 +570,7 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
         err = np.abs(wtab[None, :] - w[lo:lo + 8192, None])
         j1 = np.argmin(err, axis=1)
         e1 = err[np.arange(len(j1)), j1]
-        dist = np.abs((beta[None, :] - beta[j1][:, None] + 90.0) % 180.0 - 90.0)
+        dist = _half_turn_distance(beta)[j1]
         err2 = np.where(dist > 2.0, err, np.inf)
         j2 = np.argmin(err2, axis=1)
         e2 = err2[np.arange(len(j2)), j2]
@@ -566,26 +736,12 @@ def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scal
     away) needs no test.
     """
     n = len(angle)
-    searched = set(int(i) for i in searched)
+    is_searched = np.zeros(n, dtype=bool)
+    is_searched[np.asarray(searched, dtype=np.int64)] = True
     reach = machine.kind == "ttr" and machine.angle_max - machine.angle_min < per - 1e-9
-    prop = angle.copy()
-    prev = previous
-    lst = angle.tolist()
-    a1, a2 = c1.tolist(), c2.tolist()
-    for i in range(n):
-        a = lst[i]
-        if a != a:  # NaN: split or dropped move
-            continue
-        if i in searched or reach:
-            best = a + per * round((prev - a) / per)
-        else:
-            best = None
-            for c in (a1[i], a2[i]):
-                near = c + per * round((prev - c) / per)
-                if best is None or abs(near - prev) < abs(best - prev):
-                    best = near
-        prop[i] = best
-        prev = best
+    prop = smooth_chain(np.asarray(angle, dtype=float), np.asarray(c1, dtype=float),
+                        np.asarray(c2, dtype=float), is_searched, bool(reach), float(per),
+                        float(previous))
     diff = np.abs((prop - angle + per / 2) % per - per / 2)
     test = np.flatnonzero(np.isfinite(prop) & (diff > 1e-6))
     out = np.where(np.isfinite(prop), prop, angle)
@@ -619,7 +775,7 @@ def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
 
 
 def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, per, options,
-            scale=None, limit=None):
+            scale=None, limit=None, fast=True):
     """Vectorised search over many moves: the four cheapest orientations of each, then all.
 
     Cost: width error over ``width_slack`` plus the turn from ``prev`` over 30° (a 30°
@@ -639,16 +795,45 @@ def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, 
     near, werr, turn = _cost_terms(direction, widths, prev, cands, beta, wtab, per)
     key = werr / max(options.width_slack, 1e-9) + turn / 30.0
     order = np.argsort(key, axis=1, kind="stable")
-    ncand = len(cands)
+    return _search_ordered(target, pieces, p0, p1, near, order, scale, limit, fast)
+
+
+def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None, fast=True):
+    """:func:`_search` given each move's candidates ``near`` and their order of cost."""
+    k = len(p0)
+    found = np.zeros(k, dtype=bool)
+    best = np.full(k, np.nan)
+    if k == 0:
+        return found, best
+    ncand = near.shape[1]
+    # the cheapest first, in rounds of 4, 4 and the rest; a move takes part in the rounds
+    # starting below its limit
+    lim = np.full(k, ncand) if limit is None else np.asarray(limit)
+    count = np.zeros(k, dtype=np.int64)
+    for start, stop in ((0, min(4, ncand)), (min(4, ncand), min(8, ncand)),
+                        (min(8, ncand), ncand)):
+        if stop > start:
+            count = np.where(lim > start, stop, count)
+    if fast and _fused(pieces):
+        # the rounds only bounded the wasted tests: the first candidate that fits, in
+        # order, is the one they find, and the kernel stops there
+        phis = np.take_along_axis(near, order, axis=1)[np.arange(ncand)[None, :]
+                                                       < count[:, None]]
+        gend = np.cumsum(count)
+        first = _first_fit(target, pieces, p0, p1, scale, np.repeat(np.arange(k), count),
+                           phis, None, gend - count, gend)
+        found = first >= 0
+        best[found] = phis[first[found]]
+        return found, best
     for start, stop in ((0, min(4, ncand)), (min(4, ncand), min(8, ncand)), (min(8, ncand), ncand)):
-        todo = np.flatnonzero(~found & (limit > start if limit is not None else True))
+        todo = np.flatnonzero(~found & (count > start))
         if todo.size == 0 or stop <= start:
             continue
         cols = order[todo, start:stop]  # (t, s)
         rows = np.repeat(todo, cols.shape[1])
         phis = near[rows, cols.ravel()]
         ok = fits(target, pieces, p0[rows], p1[rows], phis,
-                  scale=None if scale is None else scale[rows]).reshape(cols.shape)
+                  scale=None if scale is None else scale[rows], fast=fast).reshape(cols.shape)
         hit = ok.any(axis=1)
         first = np.argmax(ok, axis=1)
         sel = todo[hit]
@@ -658,7 +843,7 @@ def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, 
 
 
 def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
-                options, scale=None) -> list[list[OrientedPiece]]:
+                options, scale=None, fast=True) -> list[list[OrientedPiece]]:
     """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
     A move usually fails because one end pokes out at a corner: first the
@@ -675,75 +860,119 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     prev = np.where(np.isnan(prev), 0.0, prev)
     near, werr, turn = _cost_terms(direction, width, prev, cands, beta, wtab, per)
     key = werr / max(options.width_slack, 1e-9) + turn / 30.0
-    top = np.take_along_axis(near, np.argsort(key, axis=1, kind="stable")[:, :2], axis=1)
-    # candidate intervals per move
-    mv, t0s, t1s = [], [], []
-    for i in range(n):
-        if length[i] <= 2 * step:
-            continue
-        d = step / length[i]
-        while d < 0.5:
-            for t0, t1 in ((d, 1.0), (0.0, 1.0 - d), (d, 1.0 - d)):
-                mv.append(i)
-                t0s.append(t0)
-                t1s.append(t1)
-            d *= 2.0
+    order_all = np.argsort(key, axis=1, kind="stable")
+    top = np.take_along_axis(near, order_all[:, :2], axis=1)
     keep = [(0.0, 0.0, np.nan)] * n  # (t0, t1, angle) of the kept middle interval
-    if mv:
-        mv_a = np.repeat(np.array(mv), top.shape[1])
-        col = np.tile(np.arange(top.shape[1]), len(mv))
-        t0a = np.repeat(np.array(t0s), top.shape[1])
-        t1a = np.repeat(np.array(t1s), top.shape[1])
-        phis = top[mv_a, col]
-        q0 = a[mv_a] + t0a[:, None] * (b - a)[mv_a]
-        q1 = a[mv_a] + t1a[:, None] * (b - a)[mv_a]
-        ok = fits(target, pieces, q0, q1, phis,
-                  scale=None if scale is None else scale[mv_a])
-        span = np.where(ok, t1a - t0a, -1.0)
-        for i in np.unique(mv_a[ok]).tolist():
-            rows = np.flatnonzero(mv_a == i)
-            j = rows[int(np.argmax(span[rows]))]
-            keep[i] = (float(t0a[j]), float(t1a[j]), float(phis[j]))
-    out: list[list[OrientedPiece]] = [[] for _ in range(n)]
+    ncol = top.shape[1]
+    # candidate intervals per move: trimmed by d = step/length, 2d, 4d… (d < 1/2) at the
+    # start, the end or both; each at the ncol cheapest orientations
+    mv_l, t0_l, t1_l, rank_l = [], [], [], []
+    live = np.flatnonzero(length > 2 * step)
+    d = step / length[live]
+    level = 0
+    while live.size:
+        more = d < 0.5
+        live, d = live[more], d[more]
+        for kind, (t0, t1) in enumerate(((d, np.ones_like(d)), (np.zeros_like(d), 1.0 - d),
+                                         (d, 1.0 - d))):
+            mv_l.append(live)
+            t0_l.append(t0)
+            t1_l.append(t1)
+            rank_l.append(np.full(live.size, level * 3 + kind))
+        d = d * 2.0
+        level += 1
+    mv = np.concatenate(mv_l) if mv_l else np.zeros(0, dtype=np.int64)
+    if mv.size:
+        t0a = np.concatenate(t0_l)
+        t1a = np.concatenate(t1_l)
+        span = t1a - t0a
+        rank = np.concatenate(rank_l)
+        # the longest interval that fits, the first generated among equals (argmax's
+        # choice): candidates by decreasing span, then generation order, and the first
+        # that fits wins, so the rest are never tried
+        cand_iv = np.repeat(np.arange(mv.size), ncol)
+        cand_col = np.tile(np.arange(ncol), mv.size)
+        srt = np.lexsort((rank[cand_iv] * ncol + cand_col, -span[cand_iv], mv[cand_iv]))
+        cand_iv, cand_col = cand_iv[srt], cand_col[srt]
+        phis = top[mv[cand_iv], cand_col]
+        q0 = a[mv] + t0a[:, None] * (b - a)[mv]
+        q1 = a[mv] + t1a[:, None] * (b - a)[mv]
+        moves, gpos, cnt = np.unique(mv[cand_iv], return_index=True, return_counts=True)
+        sc_iv = None if scale is None else scale[mv]
+        if fast and _fused(pieces):
+            first = _first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, gpos,
+                               gpos + cnt)
+        else:
+            first = _first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
+                                         gpos + cnt, fast=fast)
+        for i, j in zip(moves[first >= 0].tolist(), first[first >= 0].tolist(), strict=True):
+            keep[i] = (float(t0a[cand_iv[j]]), float(t1a[cand_iv[j]]), float(phis[j]))
+    # pieces as (t0, t1, angle) until merged: a frozen dataclass costs a microsecond each
+    out: list[list[tuple[float, float, float]]] = [[] for _ in range(n)]
     for i in range(n):
         if keep[i][1] > keep[i][0]:
-            out[i].append(OrientedPiece(*keep[i]))
+            out[i].append(keep[i])
     # what is left of every move: each part searched whole at every orientation; a part
-    # that fits nowhere is halved (down to `step`) and searched again
+    # that fits nowhere is halved (down to `step`) and searched again. A part's candidates
+    # and their order are its move's (they depend on the direction, width and previous
+    # orientation only).
     todo = []
     for i in range(n):
         t0, t1, _ = keep[i]
         ranges = [(0.0, 1.0)] if t1 <= t0 else [(0.0, t0), (t1, 1.0)]
         todo += [(i, ra, rb) for ra, rb in ranges if rb - ra > 1e-12]
-    while todo:
-        idx = np.array([i for i, _, _ in todo])
-        ta = np.array([r for _, r, _ in todo])
-        tb = np.array([r for _, _, r in todo])
+    ncand = near.shape[1]
+    # every candidate of every move, in order, with its cos/sin: the parts index them
+    near_ord = np.take_along_axis(near, order_all, axis=1).ravel()
+    rad = np.deg2rad(near_ord)
+    trig = (np.cos(rad), np.sin(rad))
+    idx = np.array([i for i, _, _ in todo], dtype=np.int64)
+    ta = np.array([r for _, r, _ in todo], dtype=float)
+    tb = np.array([r for _, _, r in todo], dtype=float)
+    while idx.size:
         q0 = a[idx] + ta[:, None] * (b - a)[idx]
         q1 = a[idx] + tb[:, None] * (b - a)[idx]
-        found, best = _search(target, pieces, q0, q1, direction[idx], width[idx], prev[idx],
-                              cands, beta, wtab, per, options,
-                              None if scale is None else scale[idx])
-        nxt = []
-        for k, (i, ra, rb) in enumerate(todo):
-            if found[k]:
-                out[i].append(OrientedPiece(ra, rb, float(best[k])))
-            elif length[i] * (rb - ra) > 2 * step * 1.000001:
-                # straight to pieces of 2·`step` (smaller pieces fit more easily)
-                m = math.ceil(length[i] * (rb - ra) / (2 * step))
-                t = np.linspace(ra, rb, m + 1)
-                nxt += [(i, float(t[q]), float(t[q + 1])) for q in range(m)]
-        todo = nxt
-    return [_merge(sorted(o, key=lambda p: p.t0)) for o in out]
-
-
-def _merge(pieces: list[OrientedPiece]) -> list[OrientedPiece]:
-    out: list[OrientedPiece] = []
-    for p in pieces:
-        if out and math.isclose(out[-1].t1, p.t0) and math.isclose(out[-1].angle, p.angle):
-            out[-1] = OrientedPiece(out[-1].t0, p.t1, out[-1].angle)
+        if fast and _fused(pieces) and ncand:
+            # no limit: a part tries all its move's candidates, in order
+            first = _first_fit(target, pieces, q0, q1, None if scale is None else scale[idx],
+                               None, near_ord, None, idx * ncand, idx * ncand + ncand,
+                               gseg=np.arange(idx.size), trig=trig)
+            found = first >= 0
+            best = np.where(found, near_ord[first], np.nan)
         else:
-            out.append(p)
-    return out
+            found, best = _search_ordered(target, pieces, q0, q1, near[idx], order_all[idx],
+                                          None if scale is None else scale[idx], fast=fast)
+        for i, ra, rb, phi in zip(idx[found].tolist(), ta[found].tolist(), tb[found].tolist(),
+                                  best[found].tolist(), strict=True):
+            out[i].append((ra, rb, phi))
+        # the rest, straight to pieces of 2·`step` (smaller pieces fit more easily), cut as
+        # np.linspace(ra, rb, m + 1) cuts them
+        rest = ~found & (length[idx] * (tb - ta) > 2 * step * 1.000001)
+        i_r, ra, rb = idx[rest], ta[rest], tb[rest]
+        m = np.ceil(length[i_r] * (rb - ra) / (2 * step)).astype(np.int64)
+        delta = (rb - ra) / m
+        which = np.repeat(np.arange(m.size), m)
+        q = (np.arange(which.size) - np.repeat(np.cumsum(m) - m, m)).astype(float)
+        idx = i_r[which]
+        ta = q * delta[which] + ra[which]
+        tb = (q + 1.0) * delta[which] + ra[which]
+        last = np.cumsum(m) - 1
+        tb[last] = rb
+    return [_merge(sorted(o, key=_first)) for o in out]
+
+
+def _first(piece: tuple[float, float, float]) -> float:
+    return piece[0]
+
+
+def _merge(pieces: list[tuple[float, float, float]]) -> list[OrientedPiece]:
+    """Adjacent pieces (sorted by start) at the same orientation joined into one."""
+    out: list[list[float]] = []
+    for t0, t1, angle in pieces:
+        if out and math.isclose(out[-1][1], t0) and math.isclose(out[-1][2], angle):
+            out[-1][1] = t1
+        else:
+            out.append([t0, t1, angle])
+    return [OrientedPiece(t0, t1, angle) for t0, t1, angle in out]
 
 

@@ -31,21 +31,37 @@ def test_fast_and_shapely_agree_move_by_move_on_real_files(request, monkeypatch,
     data = request.getfixturevalue(fixture).read_bytes()
     opts = PostprocessOptions(nozzle=nozzle, machine="ttr")
     calls = {"n": 0, "moves": 0, "fit": 0}
+    first_fit = orientation._first_fit
 
-    def checked(target, rings, cu, su, h):
-        fast = covers_rings(target, rings, cu, su, h)
-        slow = _reference(target, rings, cu, su, h)
-        bad = np.flatnonzero(fast != slow)
-        assert bad.size == 0, f"fast path disagrees with shapely.covers on moves {bad[:10]}"
+    def checked(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend, *args,
+                gseg=None, trig=None, **kw):
+        # every candidate the fused search tried gets shapely's answer: the ones before
+        # its pick do not fit, the pick does
+        first = first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
+                          *args, gseg=gseg, trig=trig, **kw)
+        tried = [np.arange(lo, hi if f < 0 else f + 1)
+                 for lo, hi, f in zip(gpos.tolist(), gend.tolist(), first.tolist(), strict=True)]
+        q = np.concatenate(tried) if tried else np.zeros(0, dtype=np.int64)
+        g = np.repeat(np.arange(len(tried)), [t.size for t in tried])
+        m = np.asarray(gseg)[g] if gseg is not None else np.asarray(seg)[q]
+        ref = orientation._fits_rings(
+            target, pieces, p0[m], p1[m], np.asarray(angle)[q],
+            angle_end=None if angle_end is None else np.asarray(angle_end)[q],
+            scale=None if scale is None else np.asarray(scale)[m], fast=False)
+        np.testing.assert_array_equal(ref, q == np.asarray(first)[g],
+                                      err_msg="fused test disagrees with shapely.covers")
         calls["n"] += 1
-        calls["moves"] += len(fast)
-        calls["fit"] += int(fast.sum())
-        return fast
+        calls["moves"] += len(q)
+        calls["fit"] += int(ref.sum())
+        return first
 
-    monkeypatch.setattr(orientation, "covers_rings", checked)
+    monkeypatch.setattr(orientation, "_first_fit", checked)
     new_fast, res_fast = postprocess_bytes(data, options=opts)
     # both answers occur: the test is not vacuous
     assert calls["fit"] > 0 and calls["moves"] - calls["fit"] > 0
+    # the reference: every candidate of every round through shapely.covers (the search
+    # before the fused kernel), which must plan the same
+    monkeypatch.setattr(orientation, "_fused", lambda pieces: False)
     monkeypatch.setattr(orientation, "covers_rings", _reference)
     new_slow, res_slow = postprocess_bytes(data, options=opts)
     assert new_fast == new_slow
@@ -135,3 +151,75 @@ def test_chain_nearest_is_the_python_loop():
             out.append(best)
             prev = best
         np.testing.assert_array_equal(chain_nearest(c1, c2, per, 0.0), np.array(out))
+
+
+@pytest.mark.parametrize("nozzle", [*NOZZLES, "ellipse:major=0.8,minor=0.3,rot=30,x=0.1"])
+@pytest.mark.parametrize("seed", range(3))
+def test_fused_fits_is_shapely_on_random_targets(nozzle, seed):
+    """fits' fused kernel (half-planes, edge test and point location in one pass) decides
+    each footprint as shapely.covers does: plain, turning and scaled, in and out of holes."""
+    rng = np.random.default_rng(10 + seed)
+    target = grown_target(_random_target(rng), 0.0)
+    n = 3000
+    p0 = rng.uniform(-6, 6, (n, 2))
+    p1 = p0 + rng.normal(0, 1.0, (n, 2)) * rng.uniform(0, 1, (n, 1))
+    p1[:50] = p0[:50]
+    angle = rng.uniform(-400, 400, n)
+    end = angle + rng.uniform(-20, 20, n)
+    scale = rng.uniform(0.3, 1.0, n)
+    pieces = convex_pieces(parse_nozzle(nozzle))
+    for kw in ({}, {"angle_end": end}, {"scale": scale}):
+        fast = orientation.fits(target, pieces, p0, p1, angle, **kw)
+        slow = orientation.fits(target, pieces, p0, p1, angle, fast=False, **kw)
+        np.testing.assert_array_equal(fast, slow)
+        assert fast.any() and not fast.all()
+
+
+def test_point_location_along_a_grid_row():
+    """Footprints wholly inside a hole or wholly inside G, far from and near to ∂G, on
+    rows through vertices: located as shapely locates them."""
+    outer = shapely.box(0.0, 0.0, 30.0, 3.0)
+    holes = [shapely.box(x, 1.0, x + 1.5, 2.0) for x in (2.0, 7.0, 12.5, 20.0)]
+    target = grown_target(outer.difference(shapely.union_all(holes)), 0.0)
+    pieces = convex_pieces(parse_nozzle("ellipse:major=0.4,minor=0.2"))
+    x = np.linspace(0.3, 29.7, 400)
+    for y in (0.5, 1.0, 1.5, 2.0, 2.5):
+        p0 = np.column_stack([x, np.full(x.size, y)])
+        for dx in (0.0, 0.05):
+            p1 = p0 + np.array([dx, 0.0])
+            angle = np.full(x.size, 90.0)
+            fast = orientation.fits(target, pieces, p0, p1, angle)
+            slow = orientation.fits(target, pieces, p0, p1, angle, fast=False)
+            np.testing.assert_array_equal(fast, slow)
+
+
+def test_smooth_chain_is_the_python_loop():
+    """The compiled smoothing proposals are those of the Python loop, halves included."""
+    from printability.motion.fastfit import smooth_chain
+
+    rng = np.random.default_rng(6)
+    n = 4000
+    angle = rng.uniform(-720, 720, n)
+    angle[rng.random(n) < 0.1] = np.nan
+    angle[:40] = np.arange(-450.0, 450.0, 22.5)[:40]
+    c1 = rng.uniform(-720, 720, n)
+    c2 = c1 + rng.choice([0.0, 90.0, 45.5], n)
+    searched = rng.random(n) < 0.3
+    for per, reach in ((180.0, False), (360.0, False), (180.0, True)):
+        prop, prev = angle.copy(), 0.0
+        for i in range(n):
+            a = float(angle[i])
+            if a != a:
+                continue
+            if searched[i] or reach:
+                best = a + per * round((prev - a) / per)
+            else:
+                best = None
+                for c in (float(c1[i]), float(c2[i])):
+                    near = c + per * round((prev - c) / per)
+                    if best is None or abs(near - prev) < abs(best - prev):
+                        best = near
+            prop[i] = best
+            prev = best
+        np.testing.assert_array_equal(smooth_chain(angle, c1, c2, searched, reach, per, 0.0),
+                                      prop)
