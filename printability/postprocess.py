@@ -43,6 +43,7 @@ or any other shape, is checked move by move with its whole orifice.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -507,6 +508,29 @@ def _planned_widths(g, seg, seg_move, heights, filament_diameter) -> np.ndarray:
     return width
 
 
+@dataclass(frozen=True)
+class _ZRamp:
+    """Z along a climbing move's chords (spiral vase), by path length."""
+
+    z0: float
+    z1: float
+    first: int  # index of the move's first chord
+    length: list[float]
+    start: list[float]  # path length before each chord; the last item is the total
+    decimals: int
+
+    def word(self, s: int, t: float) -> bytes:
+        """`` Z…`` at fraction ``t`` of chord ``s``."""
+        total = self.start[-1] if self.start[-1] > 0 else 1.0
+        k = s - self.first
+        z = self.z0 + (self.z1 - self.z0) * min(1.0, (self.start[k] + t * self.length[k]) / total)
+        return b" Z" + format_number(z, self.decimals).encode()
+
+
+def _no_z_word(s: int, t: float) -> bytes:
+    return b""
+
+
 def _first_command_line(lines: np.ndarray) -> int:
     from gcode._lexer import KIND_BLANK, KIND_COMMENT
 
@@ -745,6 +769,15 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
         px, py = m_x0[mi], m_y0[mi]
         comment = b" ; printability: was " + raw.rstrip(b"\r\n").strip()[:60]
         lines_new: list[bytes] = []
+        # A move that also climbs (spiral vase) climbs along its new lines too, by path
+        # length, instead of stepping Z at the end.
+        z0, z1 = m_z0[mi], m_z1[mi]
+        ramp = None
+        if z1 != z0 and math.isfinite(z0) and math.isfinite(z1):
+            c_len = [math.hypot(s_x1[s] - s_x0[s], s_y1[s] - s_y0[s]) for s in range(a0, a1)]
+            ramp = _ZRamp(z0, z1, a0, c_len, list(itertools.accumulate(c_len, initial=0.0)),
+                          xd)
+        z_word = ramp.word if ramp is not None else _no_z_word
         for s in range(a0, a1):
             sx0, sy0, sx1, sy1 = s_x0[s], s_y0[s], s_x1[s], s_y1[s]
             se = s_e[s]
@@ -758,7 +791,7 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
                 qx1, qy1 = sx0 + t1 * (sx1 - sx0), sy0 + t1 * (sy1 - sy0)
                 if math.hypot(qx0 - px, qy0 - py) > 1e-9:
                     lines_new.append(b"G1 X" + format_number(qx0, xd).encode() + b" Y"
-                                     + format_number(qy0, xd).encode())
+                                     + format_number(qy0, xd).encode() + z_word(s, t0))
                     px, py = qx0, qy0
                 c_word = b""
                 if turns and math.isfinite(phi):
@@ -789,7 +822,7 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
                 else:
                     e_word = b"E" + format_number(e_start_abs + e_acc, ed).encode()
                 ws = [b"G1", b"X" + format_number(qx1, xd).encode(),
-                      b"Y" + format_number(qy1, xd).encode(), e_word]
+                      b"Y" + format_number(qy1, xd).encode() + z_word(s, t1), e_word]
                 if c_word:
                     ws.append(c_word)
                 if first and f_text is not None:
@@ -800,12 +833,12 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
         ex, ey = m_x1[mi], m_y1[mi]
         if math.hypot(ex - px, ey - py) > 1e-9 or not lines_new:
             ws = [b"G1", b"X" + format_number(ex, xd).encode(),
-                  b"Y" + format_number(ey, xd).encode()]
+                  b"Y" + format_number(ey, xd).encode() + z_word(a1 - 1, 1.0)]
             if first and f_text is not None:
                 ws.append(f_text.encode())
             lines_new.append(b" ".join(ws))
-        if m_z1[mi] != m_z0[mi] and math.isfinite(m_z1[mi]):
-            lines_new.append(b"G1 Z" + format_number(m_z1[mi], xd).encode())
+        if z1 != z0 and math.isfinite(z1) and ramp is None:
+            lines_new.append(b"G1 Z" + format_number(z1, xd).encode())
         if not e_rel and e_end_abs is not None and abs(e_acc - e_move) > 10 ** -ed:
             lines_new.append(b"G92 E" + format_number(e_end_abs, ed).encode())
         lines_new[0] = lines_new[0] + comment

@@ -243,3 +243,24 @@ def test_xy_machine_never_turns_an_ellipse(prusa_short):
     targets = _layer_targets(parse_gcode(data), 1.75, 32)
     reports = check_deposition(extrusion_chords(g), targets, parse_nozzle(ELLIPSE), layers=[3])
     assert reports[0].max_outside <= TOL + 2e-4
+
+
+def test_split_moves_of_a_spiral_vase_keep_climbing(shared_data):
+    """In vase mode every move climbs; a move split for the nozzle climbs along its new
+    lines (Z by path length), with no Z step left at its end."""
+    data = (shared_data / "gcode" / "prusaslicer_2.7.4_spiral_vase.gcode").read_bytes()
+    new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE,
+                                                                  machine="ttr"))
+    assert res.split_moves > 100
+
+    def climb(g):
+        m = g.moves
+        z = m["z1"][m["is_extrusion"]]
+        still = (m["x1"] == m["x0"]) & (m["y1"] == m["y0"]) & (m["z1"] != m["z0"])
+        return int((np.diff(z) < -1e-9).sum()), int(still.sum())
+
+    before, after = climb(parse_gcode(data)), climb(parse_gcode(new))
+    assert after == before  # Z never goes down; no Z-only move was added
+    m = parse_gcode(new).moves
+    ext = m["is_extrusion"] & (m["z1"] != m["z0"])
+    assert ext.sum() > parse_gcode(data).moves["is_extrusion"].sum() * 0.5
