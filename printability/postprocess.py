@@ -111,6 +111,9 @@ class PostprocessOptions:
         Precision of rotary words.
     chord_tolerance
         Linearisation of arcs, mm.
+    workers
+        Threads that rebuild the layer targets (GEOS unions, which release
+        the GIL) while the planner runs; None: one per CPU core, at most 4.
     output_name
         New final file name to hand back to the slicer through the
         ``<gcode>.output_name`` file (PrusaSlicer ≥ 2.4 convention); None
@@ -129,6 +132,7 @@ class PostprocessOptions:
     angle_decimals: int = 3
     chord_tolerance: float = 0.002
     output_name: str | None = None
+    workers: int | None = None
     orientation: OrientationOptions = field(default_factory=OrientationOptions)
 
 
@@ -370,7 +374,7 @@ def postprocess_bytes(
         seg_move = part_idx[seg["move"]]  # index into g.moves
         widths = _planned_widths(g, seg, seg_move, file_heights, float(fd))
         seg_layer = moves["layer"][seg_move]
-        targets = _layer_targets(g, float(fd), quad_segs)
+        targets = _layer_targets(g, float(fd), quad_segs, workers=_workers(options))
     else:
         seg_move = np.zeros(0, np.int64)
         widths = np.zeros(0)
@@ -387,6 +391,8 @@ def postprocess_bytes(
     order = np.argsort(seg_layer, kind="stable") if len(seg) else np.zeros(0, np.int64)
     bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1)) if len(seg) else None
     seg_len = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"]) if len(seg) else np.zeros(0)
+    tol_grow = options.tolerance - wopts.rounding
+    grown = _grown_targets(targets, tol_grow, workers=_workers(options))
     for k in range(n_layers):
         if targets[k] is None:
             continue
@@ -394,7 +400,7 @@ def postprocess_bytes(
         p0 = np.column_stack([seg["x0"][idx], seg["y0"][idx]])
         p1 = np.column_stack([seg["x1"][idx], seg["y1"][idx]])
         # new lines are rounded to 4 decimals: keep that displacement inside the tolerance
-        tgt = grown_target(targets[k], options.tolerance - wopts.rounding)
+        tgt = next(grown)
         sm = seg_move[idx]
         chained = np.zeros(idx.size, dtype=bool)
         if idx.size > 1 and policy == "xy":
@@ -462,7 +468,29 @@ def postprocess_bytes(
     return result_bytes, res
 
 
-def _layer_targets(g, filament_diameter: float, quad_segs: int) -> list:
+def _workers(options: PostprocessOptions) -> int:
+    if options.workers is not None:
+        if options.workers < 1:
+            raise InputError(f"workers must be at least 1; got {options.workers!r}")
+        return int(options.workers)
+    return max(1, min(4, os.cpu_count() or 1))
+
+
+def _grown_targets(targets: list, tolerance: float, *, workers: int):
+    """Yield, for each layer with a target, its prepared grown target, in layer order,
+    computed on ``workers`` threads while the caller plans (a GEOS buffer releases the
+    GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    todo = [t for t in targets if t is not None]
+    if workers <= 1:
+        yield from (grown_target(t, tolerance) for t in todo)
+        return
+    with ThreadPoolExecutor(workers) as ex:
+        yield from ex.map(lambda t: grown_target(t, tolerance), todo)
+
+
+def _layer_targets(g, filament_diameter: float, quad_segs: int, *, workers: int = 1) -> list:
     """Per layer, G as :mod:`printability.sources.gcode` rebuilds it (None: no part bead).
 
     The same reconstruction as ``printability analyze`` on the same file, so
@@ -472,7 +500,8 @@ def _layer_targets(g, filament_diameter: float, quad_segs: int) -> list:
     from printability.sources.gcode import layer_regions
 
     out: list = [None] * len(g.layers)
-    for li, geom, _facts in layer_regions(g, settings=Settings(quad_segs=quad_segs),
+    for li, geom, _facts in layer_regions(g, settings=Settings(quad_segs=quad_segs,
+                                                               workers=workers),
                                           filament_diameter=filament_diameter):
         out[li] = geom if geom is not None and not geom.is_empty else None
     return out

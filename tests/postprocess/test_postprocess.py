@@ -264,3 +264,13 @@ def test_split_moves_of_a_spiral_vase_keep_climbing(shared_data):
     m = parse_gcode(new).moves
     ext = m["is_extrusion"] & (m["z1"] != m["z0"])
     assert ext.sum() > parse_gcode(data).moves["is_extrusion"].sum() * 0.5
+
+
+def test_threads_rebuilding_the_targets_change_nothing(shared_data):
+    data = (shared_data / "gcode" / "prusaslicer_2.7.4_marlin2_arcs.gcode").read_bytes()
+    outs = {w: postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
+                                                                  workers=w))[0]
+            for w in (1, 3)}
+    assert outs[1] == outs[3]
+    with pytest.raises(InputError, match="workers must be at least 1"):
+        postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, workers=0))
