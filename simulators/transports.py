@@ -206,8 +206,22 @@ class _Server:
         self.stop()
 
 
-_SPIN = 0.0003  # s: how long before an answer is due the pty server stops sleeping
+_SPIN = 0.0003  # s: how long before an answer is due a server stops sleeping
 _LISTEN = 0.0005  # s: how long after an answer it spins for the host's next line
+
+
+def _select_timeout(wait: float, listen_until: float) -> float:
+    """How long a server may block in ``select`` when the link next needs it in ``wait`` s.
+
+    A sleeping thread wakes up ~0.1 ms late: an answer due within 2 ms is
+    woken for early and spun for, and right after an answer the host's next
+    line is spun for too (a board's UART interrupt has no wake-up latency).
+    """
+    if time.monotonic() < listen_until:
+        return 0.0
+    if wait < 0.002:
+        return max(wait - _SPIN, 0.0)
+    return wait
 
 
 class PtyServer(_Server):
@@ -241,12 +255,8 @@ class PtyServer(_Server):
         while not self._stop.is_set():
             wait = link.wait_time()
             if wait < 0.002 or time.monotonic() < listen_until:
-                # poll() counts whole milliseconds and a sleeping thread wakes up ~0.1 ms
-                # late. An answer due sooner is timed by select(), woken early, then spun
-                # for; right after an answer the host's next line is spun for too (a
-                # board's UART interrupt has no wake-up latency).
-                if time.monotonic() >= listen_until:
-                    select.select([self.master], [], [], max(wait - _SPIN, 0.0))
+                # poll() counts whole milliseconds: short waits are timed by select()
+                select.select([self.master], [], [], _select_timeout(wait, listen_until))
                 wait = 0.0
             events = poller.poll(wait * 1000)
             hup = any(ev & select.POLLHUP for _, ev in events)
@@ -327,8 +337,10 @@ class TcpServer(_Server):
 
     def _serve(self, conn: socket.socket) -> None:
         link = self.link
+        listen_until = 0.0
         while not self._stop.is_set():
-            r, _, _ = select.select([conn], [], [], max(link.wait_time(), 0.001))
+            r, _, _ = select.select([conn], [], [],
+                                    _select_timeout(link.wait_time(), listen_until))
             if r:
                 try:
                     data = conn.recv(4096)
@@ -343,6 +355,7 @@ class TcpServer(_Server):
                     conn.sendall(out)
                 except OSError:
                     return
+                listen_until = time.monotonic() + _LISTEN
             if link.disconnected:
                 return  # drop the connection; the next one is greeted after a reset
 
