@@ -472,7 +472,7 @@ class Host:
         return self.firmware
 
     def _write(self, data: bytes) -> None:
-        self._port.write(data)
+        self._reader.write(data)
         self._bytes_sent += len(data)
 
     def _readline(self, deadline: float) -> str | None:

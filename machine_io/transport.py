@@ -156,6 +156,39 @@ class LineReader:
             if time.monotonic() >= deadline:
                 return None
 
+    def write(self, data: bytes) -> None:
+        """Write all of ``data`` to the port (on a POSIX descriptor directly: pyserial
+        follows every write with a ``select`` for its write timeout).
+
+        Raises
+        ------
+        serial.SerialTimeoutException
+            The port took no bytes for the port's ``write_timeout`` (10 s).
+        serial.SerialException
+            The port failed.
+        """
+        if self._fd is None:
+            self.port.write(data)
+            return
+        view = memoryview(data)
+        limit = self.port.write_timeout if self.port.write_timeout is not None else 10.0
+        deadline = time.monotonic() + limit
+        while view:
+            try:
+                n = os.write(self._fd, view)
+            except BlockingIOError:
+                n = 0
+            except OSError as exc:
+                if exc.errno == errno.EINTR:
+                    continue
+                raise serial.SerialException(f"write failed: {exc}") from None
+            view = view[n:]
+            if view:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise serial.SerialTimeoutException("Write timeout")
+                select.select([], [self._fd], [], left)
+
     def pending(self) -> bool:
         """True if a complete line is already buffered."""
         return bool(self._lines)
