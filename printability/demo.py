@@ -103,6 +103,7 @@ class DemoResult:
     violations: int
     elapsed: float
     notes: tuple[str, ...] = field(default=())
+    lost_in_reset: int = 0  # acknowledged planned moves a board reset dropped unprinted
 
     @property
     def report(self) -> Path:
@@ -246,7 +247,8 @@ def run_demo(
                         log_matches, tuple(rows), len(record.violations),
                         time.perf_counter() - t0,
                         (f"generate: {gen.rotations} rotations, {gen.dropped_length:.2f} mm of "
-                         f"path no orientation can print",))
+                         f"path no orientation can print",),
+                        len(record.stats.get("lost_in_reset", ())))
     doc = _json(result, analysis, record)
     files.append(_write_atomic(out / "report.json", json.dumps(doc, indent=1) + "\n"))
     png = _figure(layers, best, record)
@@ -339,6 +341,15 @@ def _figure(layers: LayerStack, best: Any, record: Any) -> bytes | None:
     return buf.getvalue()
 
 
+def _lost_note(result: DemoResult) -> str:
+    if not result.lost_in_reset:
+        return ""
+    return (f"The board reset during the print and dropped {result.lost_in_reset} planned "
+            "moves it had already acknowledged (a real board loses its planner too; the host "
+            "resumes after the last acknowledged line): their material is missing from the "
+            "deposition below; the record lists them under <code>lost_in_reset</code>.")
+
+
 def _html(result: DemoResult, figure: bool) -> str:
     e = html.escape
     s = result.stream
@@ -366,6 +377,7 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:.2em .6em;
 <p>{s.acknowledged} of {s.total} commands acknowledged ({e(s.mode)}), {s.resends} resends
 (ratio {100 * s.resend_ratio:.2f} %), {s.timeouts} timeouts, {s.reconnects} reconnects.
 The simulator executed exactly the file: <b>{'yes' if result.log_matches else 'NO'}</b>.
+{_lost_note(result)}
 Transcript: <a href="serial.log">serial.log</a>; record: <a href="record.json">record.json</a>.</p>
 <h2>5. Target, prediction and deposition (mm²)</h2>
 <table><tr><th>z mm</th><th>target G</th><th>predicted S</th><th>deposited D</th>

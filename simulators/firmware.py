@@ -158,6 +158,9 @@ class Stats:
     blocks: int = 0
     motion_time: float = 0.0
     faults: list[tuple[str, int]] = field(default_factory=list)
+    # log indices of commands whose planned moves a reset or kill dropped before they ran
+    # (acknowledged, so a host resuming after the last acknowledged line does not resend them)
+    lost: list[int] = field(default_factory=list)
 
 
 class Firmware:
@@ -190,7 +193,15 @@ class Firmware:
         self._power_on(banner=False)
 
     # ================================================================ lifecycle
+    def _drop_planner(self) -> None:
+        """Forget the planned blocks; the one running (already deposited) is not lost."""
+        planner = getattr(self, "_planner", None)
+        if planner:
+            lost = sorted({b.index for b in list(planner)[1:]} - {planner[0].index})
+            self.stats.lost.extend(i for i in lost if i >= 0)
+
     def _power_on(self, *, banner: bool) -> None:
+        self._drop_planner()
         self.last_n = 0
         self._ring = bytearray()
         self._ep_line = bytearray()
@@ -533,6 +544,7 @@ class Firmware:
         self._ring.clear()
         self._line.clear()
         self._queue.clear()
+        self._drop_planner()
         self._planner.clear()
         self._active = None
         self._wait = None
@@ -843,6 +855,7 @@ class Firmware:
             "errors": dict(s.errors), "unknown_commands": s.unknown, "busy_sent": s.busy_sent,
             "cold_extrusions": s.cold_extrusions, "refused_moves": s.refused_moves,
             "resets": s.resets, "moves": s.moves,
+            "lost_in_reset": [[i, *self.executed[i]] for i in s.lost],
             "planner_blocks": s.blocks,
             "motion_time_s": s.motion_time, "clock_s": self.now,
             "faults": [list(f) for f in s.faults],

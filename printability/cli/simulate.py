@@ -116,6 +116,7 @@ def simulate_command(
     st = sim.firmware.stats
     print(f"simulate: {st.executed} commands executed, {st.resends} resends, "
           f"{st.moves} moves, motion time {st.motion_time:.1f} s"
+          + (f", {len(st.lost)} acknowledged moves lost in resets" if st.lost else "")
           + (f"; record written to {record}" if record else ""), file=sys.stderr)
 
 

@@ -139,3 +139,21 @@ def test_random_faults_are_reproducible_and_lose_nothing(seed):
 
 def test_different_seeds_give_different_faults():
     assert _run(RANDOM, 1)[2] != _run(RANDOM, 2)[2]
+
+
+def test_a_reset_drops_the_planned_moves_and_the_record_says_which():
+    """Moves acknowledged into the planner but not started are lost with a reset, as on a
+    real board: not deposited, and listed (log index, line number, text) in the record."""
+    fw = _fw("disconnect@7", profile="marlin")
+    cmds = ["M302 P1", "G92 X0 Y0 Z0.2 E0", *[f"G1 X{10 * k} Y0 E{k} F600" for k in (1, 2, 3, 4)]]
+    for n, c in enumerate(cmds, 1):
+        _say(fw, framed(n, c))
+    assert _say(fw, framed(7, "M400")) == [Disconnect()]
+    rec = fw.record()
+    lost = rec.stats["lost_in_reset"]
+    # the first move was running (its material is down); the three behind it were not
+    assert [n for _, n, _ in lost] == [4, 5, 6]
+    assert [t for _, _, t in lost] == cmds[3:]
+    assert all(fw.executed[i][1] == t for i, _, t in lost)
+    deposited = sum(lay.moves for lay in rec.layers)
+    assert deposited == 1
