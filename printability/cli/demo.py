@@ -42,6 +42,9 @@ def demo_command(
                f"commands, {s.resends} resends, {s.timeouts} timeouts, {s.reconnects} "
                f"reconnects; simulator log equals the file: "
                f"{'yes' if result.log_matches else 'NO'}")
+    if result.lost_in_reset:
+        typer.echo(f"the board's reset dropped {result.lost_in_reset} planned moves it had "
+                   "acknowledged (as a real board would); the record lists them")
     typer.echo(f"{'z mm':>6} {'target':>9} {'predicted':>10} {'deposited':>10} "
                f"{'outside':>8} {'covers G':>9}")
     for row in result.layers:
