@@ -199,7 +199,7 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
 
 @numba.njit(cache=True)
 def _edges_state(cu, su, h, bx0, by0, bx1, by1, ex0, ey0, ex1, ey1, start, items, x0, y0, cell,
-                 nx, ny, eps, order):  # pragma: no cover
+                 nx, ny, eps, order, found):  # pragma: no cover
     """One footprint of :func:`_decide`: 0 if ∂G enters it, -1 if ∂G grazes it, else 1.
 
     ``bx0``… is the ring's bounding box already grown by ``eps``.
@@ -225,6 +225,7 @@ def _edges_state(cu, su, h, bx0, by0, bx1, by1, ex0, ey0, ex1, ey1, start, items
                     continue
                 length = math.hypot(bx - ax, by - ay)
                 if _clip(ax, ay, bx, by, cu, su, h, -eps, order) * length > eps:
+                    found[0] = e
                     return 0
                 state = -1
     return state
@@ -291,9 +292,23 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
     :func:`swept_kernel`: the half-planes are computed by the same code, the
     edge test is :func:`_decide`'s, and where no edge of ∂G comes within
     ``eps`` of the footprint (the only case where the footprint can lie inside)
-    one of its vertices is located in G by :func:`_inside`, at least ``eps``
+    a point of it is located in G by :func:`_inside`, at least ``eps``
     from ∂G: the answer ``shapely.intersects_xy`` gives. Nothing is stored per
     footprint, which is what made one call per candidate expensive.
+
+    Two shortcuts, neither of which changes an answer:
+
+    * the four edges that last refused a footprint are tried first, before
+      the footprint's box and cells (consecutive candidates are mostly refused
+      by the same corner): an edge with a piece strictly inside the footprint
+      is a refusal whichever edge the scan would have met first, and the scan
+      finds such an edge (the piece lies in the footprint's box and cells);
+    * the point located is the segment's start where it lies in every
+      footprint (pieces centred on the nozzle, not mirrored by a negative
+      scale: their half-planes hold it, the rounding included, since the
+      offsets add a non-negative support to the segment's extent), located
+      once per segment: all the points of a footprint that ∂G does not come
+      within ``eps`` of are on the same side of ∂G.
     """
     d = len(cb)
     turning = len(k) > 0
@@ -302,6 +317,13 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
     su = np.empty(d)
     w = np.empty(d)
     h = np.empty(d)
+    centred = True  # every piece centred on the nozzle: the segment's start lies in it
+    for p in range(len(kind)):
+        if pcx[p] != 0.0 or pcy[p] != 0.0 or pa[p] < 0.0 or pb[p] < 0.0:
+            centred = False
+    mru = np.full(4, -1, np.int64)
+    found = np.zeros(1, np.int64)
+    where = -1  # start point of the segment: -1 not located yet, 0 outside, 1 inside
     last = -1
     for g in range(len(gpos)):
         out_idx[g] = -1
@@ -312,12 +334,34 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                 _directions(cn[m], sn[m], cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], cu,
                             su, w)
                 last = m
+                where = -1
             state = 1
             for p in range(len(kind)):
                 _offsets(kind[p], pa[p], pb[p], pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q],
                          c1[q] if turning else 0.0, s1[q] if turning else 0.0,
                          k[q] if turning else 1.0, turning, scale[m] if scaled else 1.0, scaled,
                          cu, su, w, h)
+                refused = False
+                for r in range(len(mru)):
+                    e = mru[r]
+                    if e < 0:
+                        break
+                    ax = ex0[e]
+                    ay = ey0[e]
+                    bx = ex1[e]
+                    by = ey1[e]
+                    if _clip(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
+                        continue
+                    if _clip(ax, ay, bx, by, cu, su, h, -eps, order) \
+                            * math.hypot(bx - ax, by - ay) > eps:
+                        for rr in range(r, 0, -1):
+                            mru[rr] = mru[rr - 1]
+                        mru[0] = e
+                        refused = True
+                        break
+                if refused:
+                    state = 0
+                    break
                 # the bounding box of the ring's vertices as swept_kernel computes them
                 # ((numerator) / det each): dividing by det > 0 keeps the order of the
                 # rounded values, so the extreme numerators give the extreme vertices
@@ -335,14 +379,24 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                     mx1 = max(mx1, x)
                     my0 = min(my0, y)
                     my1 = max(my1, y)
-                vx0 = nx0 / det
-                vy0 = ny0 / det
                 st = _edges_state(cu, su, h, mx0 / det - eps, my0 / det - eps, mx1 / det + eps,
                                   my1 / det + eps, ex0, ey0, ex1, ey1, start, items, x0, y0,
-                                  cell, nx, ny, eps, order)
-                if st == 1 and not _inside(vx0, vy0, ex0, ey0, ex1, ey1, start, items, x0, y0,
-                                           cell, nx, ny):
-                    st = 0
+                                  cell, nx, ny, eps, order, found)
+                if st == 0:
+                    for rr in range(len(mru) - 1, 0, -1):
+                        mru[rr] = mru[rr - 1]
+                    mru[0] = found[0]
+                if st == 1:
+                    if centred and not (scaled and scale[m] < 0.0):
+                        if where < 0:
+                            where = 1 if _inside(p0[m, 0], p0[m, 1], ex0, ey0, ex1, ey1, start,
+                                                 items, x0, y0, cell, nx, ny) else 0
+                        inside = where == 1
+                    else:
+                        inside = _inside(nx0 / det, ny0 / det, ex0, ey0, ex1, ey1, start, items,
+                                         x0, y0, cell, nx, ny)
+                    if not inside:
+                        st = 0
                 if st == 0:
                     state = 0
                     break

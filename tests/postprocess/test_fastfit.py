@@ -223,3 +223,26 @@ def test_smooth_chain_is_the_python_loop():
             prev = best
         np.testing.assert_array_equal(smooth_chain(angle, c1, c2, searched, reach, per, 0.0),
                                       prop)
+
+
+@pytest.mark.parametrize("nozzle", [*NOZZLES, "ellipse:major=0.8,minor=0.3,rot=30,x=0.1"])
+@pytest.mark.parametrize("seed", range(2))
+def test_first_fit_of_groups_is_shapely_on_random_targets(nozzle, seed):
+    """Many candidates per move, tried in order (the edges that refused the last
+    footprints tried first, the move's start located once): the first that fits is the
+    one shapely.covers finds, candidate by candidate."""
+    rng = np.random.default_rng(30 + seed)
+    target = grown_target(_random_target(rng), 0.0)
+    n, per = 400, 18
+    p0 = rng.uniform(-6, 6, (n, 2))
+    p1 = p0 + rng.normal(0, 1.0, (n, 2)) * rng.uniform(0, 1, (n, 1))
+    seg = np.repeat(np.arange(n), per)
+    angle = rng.uniform(-400, 400, n * per)
+    gpos = np.arange(n) * per
+    pieces = convex_pieces(parse_nozzle(nozzle))
+    fast = orientation._first_fit(target, pieces, p0, p1, None, seg, angle, None, gpos,
+                                  gpos + per)
+    slow = orientation._first_fit_reference(target, pieces, p0, p1, None, seg, angle, gpos,
+                                            gpos + per)
+    np.testing.assert_array_equal(fast, slow)
+    assert (fast >= 0).any() and (fast < 0).any()
