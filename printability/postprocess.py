@@ -337,7 +337,6 @@ def postprocess_bytes(
     moves = g.moves
     lines = g.lines
     n_layers = len(g.layers)
-    file_heights = np.where(np.isfinite(g.layers["height"]), g.layers["height"], 0.0)
     heights = g.layers["height"].copy() if n_layers else np.zeros(0)
     if options.layer_height is not None:
         heights[:] = options.layer_height
@@ -372,7 +371,7 @@ def postprocess_bytes(
                            ("e", "f8"), ("move", "i8")])
     if part_idx.size and not narrow_beads:
         seg_move = part_idx[seg["move"]]  # index into g.moves
-        widths = _planned_widths(g, seg, seg_move, file_heights, float(fd))
+        widths = _planned_widths(g, seg, seg_move, float(fd))
         seg_layer = moves["layer"][seg_move]
         targets = _layer_targets(g, float(fd), quad_segs, workers=_workers(options))
     else:
@@ -507,33 +506,15 @@ def _layer_targets(g, filament_diameter: float, quad_segs: int, *, workers: int 
     return out
 
 
-def _planned_widths(g, seg, seg_move, heights, filament_diameter) -> np.ndarray:
-    """The width of every chord as :func:`printability.sources.gcode.layer_regions` sees it.
+def _planned_widths(g, seg, seg_move, filament_diameter) -> np.ndarray:
+    """The width of every chord, by the one rule the layer targets are built with
+    (:func:`printability.sources.gcode.segment_widths`): a round nozzle laying the
+    planned width then fits G by construction."""
+    from printability.sources.gcode import segment_widths
 
-    The slicer's ``;WIDTH:``; otherwise the width inverted from E over the
-    whole move (stadium model, rectangle for Cura files), rounded to 1 µm and
-    clipped at three times the file's median, exactly as the layer targets
-    were built: a round nozzle laying the planned width then fits G by
-    construction.
-    """
-    from printability.sources.gcode import bead_widths
-
-    m = g.moves
-    width = m["width"][seg_move].astype(float).copy()
-    derived = ~np.isfinite(width)
-    if derived.any():
-        length = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"])
-        uniq, inv = np.unique(seg_move, return_inverse=True)
-        l_move = np.bincount(inv, weights=length, minlength=len(uniq))
-        model = "rectangle" if g.slicer == "Cura" else "stadium"
-        lay = np.maximum(m["layer"][seg_move], 0)
-        w = np.round(bead_widths(m["e"][seg_move], l_move[inv], heights[lay],
-                                 filament_diameter=filament_diameter, model=model), 3)
-        width[derived] = w[derived]
-        dw = w[derived]
-        dw = dw[np.isfinite(dw) & (dw > 0)]
-        if dw.size:
-            width[derived] = np.minimum(width[derived], 3.0 * float(np.median(dw)))
+    model = "rectangle" if g.slicer == "Cura" else "stadium"
+    width, _, _ = segment_widths(g, seg, seg_move, filament_diameter=filament_diameter,
+                                 model=model)
     return width
 
 

@@ -80,7 +80,8 @@ from printability.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import check_positive, require_file
 
-__all__ = ["BEAD_MODELS", "bead_widths", "layer_regions", "load_gcode_layers"]
+__all__ = ["BEAD_MODELS", "bead_widths", "layer_regions", "load_gcode_layers",
+           "segment_widths"]
 
 BEAD_MODELS = ("auto", "stadium", "rectangle")
 
@@ -141,6 +142,74 @@ def _beads_union(seg: np.ndarray, width: np.ndarray, quad_segs: int):
     return shapely.union_all(beads)
 
 
+def segment_widths(
+    g: GCodeFile,
+    seg: np.ndarray,
+    mv: np.ndarray,
+    *,
+    filament_diameter: float,
+    model: str,
+    use_width_comments: bool = True,
+    max_width_factor: float = 3.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bead width of every chord, as the layer targets are built from: one rule for
+    :func:`layer_regions` and the post-processor, so a round nozzle laying these widths
+    fits the targets by construction.
+
+    Parameters
+    ----------
+    g
+        The parsed file.
+    seg, mv
+        Chords (:meth:`GCodeFile.segments`) and the row of ``g.moves`` of each.
+    model
+        ``"stadium"`` or ``"rectangle"`` (``"auto"`` resolved by the caller).
+
+    Returns
+    -------
+    (width, derived, clipped)
+        Width, mm (NaN where unknown); True where it was derived from E (no
+        ``;WIDTH:`` comment, or comments ignored); True where it was clipped.
+
+    Notes
+    -----
+    A derived width is the bead whose cross-section carries the move's
+    filament over the move's whole length (so an arc's chords share one
+    width), rounded to 1 µm (far below E's own rounding noise, and runs of
+    moves then share one polyline). Outliers are capped at
+    ``max_width_factor`` × the file's median derived width (per-layer
+    medians mislead on layers of thin gap fill); on a layer with derived
+    widths the cap applies to every width. Zero-length chords take their
+    move's width and count for neither the median nor the layer rule.
+    """
+    m = g.moves
+    length = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"])
+    has_len = length > 0
+    layer = m["layer"][mv]
+    heights = g.layers["height"][np.maximum(layer, 0)]
+    width = (m["width"][mv].astype(float) if use_width_comments
+             else np.full(len(mv), np.nan))
+    derived = ~np.isfinite(width)
+    if derived.any():
+        uniq, inv = np.unique(mv, return_inverse=True)
+        l_move = np.bincount(inv, weights=length, minlength=len(uniq))
+        width[derived] = np.round(
+            bead_widths(m["e"][mv[derived]], l_move[inv[derived]], heights[derived],
+                        filament_diameter=filament_diameter, model=model),
+            3,
+        )
+    dw = width[derived & has_len]
+    dw = dw[np.isfinite(dw) & (dw > 0)]
+    cap = max_width_factor * float(np.median(dw)) if len(dw) else math.inf
+    n_layers = max(len(g.layers), int(layer.max()) + 1 if len(layer) else 0)
+    with_derived = np.zeros(n_layers + 1, dtype=bool)
+    with_derived[layer[derived & has_len]] = True
+    with np.errstate(invalid="ignore"):
+        clipped = with_derived[layer] & np.isfinite(width) & (width > cap)
+    width = np.where(clipped, cap, width)
+    return width, derived, clipped
+
+
 def layer_regions(
     g: GCodeFile,
     *,
@@ -179,28 +248,9 @@ def layer_regions(
     ok = length > 0
     seg, mv, length = seg[ok], mv[ok], length[ok]
     layer = m["layer"][mv]
-    heights = g.layers["height"][layer]
-    width = m["width"][mv] if use_width_comments else np.full(len(mv), np.nan)
-    derived = ~np.isfinite(width)
-    if derived.any():
-        # E and length of the whole move, so an arc's chords share one width
-        L_move = np.bincount(np.searchsorted(idx, mv), weights=length, minlength=len(idx))
-        k = np.searchsorted(idx, mv[derived])
-        width = width.copy()
-        # rounded to 1 µm (far below E's own rounding noise) so that runs of
-        # moves share one polyline instead of one buffer per move
-        width[derived] = np.round(
-            bead_widths(
-                m["e"][mv[derived]], L_move[k], heights[derived],
-                filament_diameter=filament_diameter, model=model,
-            ),
-            3,
-        )
-    # Outlier cap for derived widths: a multiple of the file's median derived width
-    # (per-layer medians mislead on layers made mostly of thin gap fill).
-    dw = width[derived]
-    dw = dw[np.isfinite(dw) & (dw > 0)]
-    cap = max_width_factor * float(np.median(dw)) if len(dw) else math.inf
+    width, derived, over = segment_widths(g, seg, mv, filament_diameter=filament_diameter,
+                                          model=model, use_width_comments=use_width_comments,
+                                          max_width_factor=max_width_factor)
     bounds = np.searchsorted(layer, np.arange(len(g.layers) + 1), side="left")
 
     def one(li: int) -> tuple[int, object, dict]:
@@ -210,13 +260,9 @@ def layer_regions(
             return li, None, facts
         w = width[a:b]
         good = np.isfinite(w) & (w > 0)
-        clipped = 0
         if derived[a:b].any():
             facts["width_from"] = f"extrusion ({model} bead)" if derived[a:b].all() else "both"
-            over = good & (w > cap)
-            clipped = int(over.sum())
-            w = np.where(over, cap, w)
-        facts["widths_clipped"] = clipped
+        facts["widths_clipped"] = int(over[a:b].sum())
         facts["median_width"] = float(np.median(w[good])) if good.any() else float("nan")
         if not good.any():
             return li, None, facts
