@@ -37,7 +37,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 __all__ = ["EPS", "boundary_grid", "chain_nearest", "covers_rings", "first_fits",
-           "smooth_chain", "swept_kernel"]
+           "merge_pieces", "smooth_chain", "swept_kernel"]
 
 EPS = 1e-9
 """Margin (mm) of the half-plane tests against rounding of the ring's vertices."""
@@ -597,3 +597,46 @@ def smooth_chain(angle, c1, c2, searched, reach, per, previous):  # pragma: no c
         prop[i] = best
         prev = best
     return prop
+
+
+@numba.njit(cache=True)
+def _isclose(a, b):  # pragma: no cover
+    """``math.isclose(a, b)`` (relative tolerance 1e-9, no absolute one), as CPython decides it."""
+    if a == b:
+        return True
+    if math.isinf(a) or math.isinf(b):
+        return False
+    diff = abs(b - a)
+    return diff <= abs(1e-9 * b) or diff <= abs(1e-9 * a)
+
+
+@numba.njit(cache=True)
+def merge_pieces(move, t0, t1, angle):  # pragma: no cover
+    """Pieces sorted by move, then start (the order given among equals), adjacent ones joined.
+
+    Two pieces of a move are joined when the second starts where the first (as
+    joined so far) ends and has its orientation, both up to ``math.isclose``:
+    the loop :func:`printability.motion.orientation._split_many` ran per move
+    on lists of tuples, compiled. Returns the joined pieces' move, start, end
+    and orientation.
+    """
+    n = len(move)
+    order = np.argsort(t0, kind="mergesort")  # stable: then by move, stable again
+    order = order[np.argsort(move[order], kind="mergesort")]
+    om = np.empty(n, np.int64)
+    oa = np.empty(n)
+    ob = np.empty(n)
+    op = np.empty(n)
+    k = 0
+    for r in range(n):
+        i = order[r]
+        if k > 0 and om[k - 1] == move[i] and _isclose(ob[k - 1], t0[i]) \
+                and _isclose(op[k - 1], angle[i]):
+            ob[k - 1] = t1[i]
+        else:
+            om[k] = move[i]
+            oa[k] = t0[i]
+            ob[k] = t1[i]
+            op[k] = angle[i]
+            k += 1
+    return om[:k], oa[:k], ob[:k], op[:k]

@@ -43,6 +43,7 @@ from printability.motion.fastfit import (
     chain_nearest,
     covers_rings,
     first_fits,
+    merge_pieces,
     smooth_chain,
     swept_kernel,
 )
@@ -862,7 +863,10 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     key = werr / max(options.width_slack, 1e-9) + turn / 30.0
     order_all = np.argsort(key, axis=1, kind="stable")
     top = np.take_along_axis(near, order_all[:, :2], axis=1)
-    keep = [(0.0, 0.0, np.nan)] * n  # (t0, t1, angle) of the kept middle interval
+    # the kept middle interval of every move (none: t1 <= t0)
+    keep_t0 = np.zeros(n)
+    keep_t1 = np.zeros(n)
+    keep_phi = np.full(n, np.nan)
     ncol = top.shape[1]
     # candidate intervals per move: trimmed by d = step/length, 2d, 4d… (d < 1/2) at the
     # start, the end or both; each at the ncol cheapest orientations
@@ -905,30 +909,30 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         else:
             first = _first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
                                          gpos + cnt, fast=fast)
-        for i, j in zip(moves[first >= 0].tolist(), first[first >= 0].tolist(), strict=True):
-            keep[i] = (float(t0a[cand_iv[j]]), float(t1a[cand_iv[j]]), float(phis[j]))
-    # pieces as (t0, t1, angle) until merged: a frozen dataclass costs a microsecond each
-    out: list[list[tuple[float, float, float]]] = [[] for _ in range(n)]
-    for i in range(n):
-        if keep[i][1] > keep[i][0]:
-            out[i].append(keep[i])
+        hit = first >= 0
+        j = first[hit]
+        keep_t0[moves[hit]] = t0a[cand_iv[j]]
+        keep_t1[moves[hit]] = t1a[cand_iv[j]]
+        keep_phi[moves[hit]] = phis[j]
+    kept = keep_t1 > keep_t0
+    # the pieces found, as arrays (move, t0, t1, angle) in the order found, until merged
+    found_l = [(np.flatnonzero(kept), keep_t0[kept], keep_t1[kept], keep_phi[kept])]
     # what is left of every move: each part searched whole at every orientation; a part
     # that fits nowhere is halved (down to `step`) and searched again. A part's candidates
     # and their order are its move's (they depend on the direction, width and previous
-    # orientation only).
-    todo = []
-    for i in range(n):
-        t0, t1, _ = keep[i]
-        ranges = [(0.0, 1.0)] if t1 <= t0 else [(0.0, t0), (t1, 1.0)]
-        todo += [(i, ra, rb) for ra, rb in ranges if rb - ra > 1e-12]
+    # orientation only). Parts by move, then position: the whole move where nothing was
+    # kept, else the parts before and after the kept interval.
+    ra_all = np.stack([np.zeros(n), np.where(kept, keep_t1, 2.0)], axis=1)
+    rb_all = np.stack([np.where(kept, keep_t0, 1.0), np.where(kept, 1.0, 2.0)], axis=1)
+    part = (rb_all - ra_all > 1e-12) & (ra_all < 2.0)
     ncand = near.shape[1]
     # every candidate of every move, in order, with its cos/sin: the parts index them
     near_ord = np.take_along_axis(near, order_all, axis=1).ravel()
     rad = np.deg2rad(near_ord)
     trig = (np.cos(rad), np.sin(rad))
-    idx = np.array([i for i, _, _ in todo], dtype=np.int64)
-    ta = np.array([r for _, r, _ in todo], dtype=float)
-    tb = np.array([r for _, _, r in todo], dtype=float)
+    idx = np.repeat(np.arange(n), 2).reshape(n, 2)[part]
+    ta = ra_all[part]
+    tb = rb_all[part]
     while idx.size:
         q0 = a[idx] + ta[:, None] * (b - a)[idx]
         q1 = a[idx] + tb[:, None] * (b - a)[idx]
@@ -942,9 +946,7 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         else:
             found, best = _search_ordered(target, pieces, q0, q1, near[idx], order_all[idx],
                                           None if scale is None else scale[idx], fast=fast)
-        for i, ra, rb, phi in zip(idx[found].tolist(), ta[found].tolist(), tb[found].tolist(),
-                                  best[found].tolist(), strict=True):
-            out[i].append((ra, rb, phi))
+        found_l.append((idx[found], ta[found], tb[found], best[found]))
         # the rest, straight to pieces of 2·`step` (smaller pieces fit more easily), cut as
         # np.linspace(ra, rb, m + 1) cuts them
         rest = ~found & (length[idx] * (tb - ta) > 2 * step * 1.000001)
@@ -958,21 +960,13 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         tb = (q + 1.0) * delta[which] + ra[which]
         last = np.cumsum(m) - 1
         tb[last] = rb
-    return [_merge(sorted(o, key=_first)) for o in out]
-
-
-def _first(piece: tuple[float, float, float]) -> float:
-    return piece[0]
-
-
-def _merge(pieces: list[tuple[float, float, float]]) -> list[OrientedPiece]:
-    """Adjacent pieces (sorted by start) at the same orientation joined into one."""
-    out: list[list[float]] = []
-    for t0, t1, angle in pieces:
-        if out and math.isclose(out[-1][1], t0) and math.isclose(out[-1][2], angle):
-            out[-1][1] = t1
-        else:
-            out.append([t0, t1, angle])
-    return [OrientedPiece(t0, t1, angle) for t0, t1, angle in out]
+    # sorted by start and joined where adjacent at the same orientation (compiled: a
+    # Python loop per piece cost more than the searches)
+    pm, pa, pb, pp = merge_pieces(*(np.concatenate([f[c] for f in found_l]).astype(t)
+                                    for c, t in enumerate((np.int64, float, float, float))))
+    out: list[list[OrientedPiece]] = [[] for _ in range(n)]
+    for i, t0, t1, phi in zip(pm.tolist(), pa.tolist(), pb.tolist(), pp.tolist(), strict=True):
+        out[i].append(OrientedPiece(t0, t1, phi))
+    return out
 
 

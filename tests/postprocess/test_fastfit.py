@@ -246,3 +246,34 @@ def test_first_fit_of_groups_is_shapely_on_random_targets(nozzle, seed):
                                             gpos + per)
     np.testing.assert_array_equal(fast, slow)
     assert (fast >= 0).any() and (fast < 0).any()
+
+
+def test_merge_pieces_is_the_python_loop():
+    """Pieces sorted by move and start and joined where adjacent (math.isclose) at the
+    same orientation, as the loop over lists of tuples joined them."""
+    import math
+
+    from printability.motion.fastfit import merge_pieces
+
+    rng = np.random.default_rng(5)
+    n = 3000
+    move = rng.integers(0, 40, n)
+    t0 = np.round(rng.uniform(0, 1, n), 2)
+    t1 = t0 + rng.choice([0.01, 0.02], n)
+    t0[::7] = t0[::7] * (1 + 1e-12)  # within math.isclose of an end, not equal
+    angle = rng.choice([0.0, 10.0, 10.0 + 1e-10, 20.0], n)
+    expect = []
+    for m in range(40):
+        run: list[list[float]] = []
+        for a, b, p in sorted(((a, b, p) for mm, a, b, p in
+                               zip(move.tolist(), t0.tolist(), t1.tolist(), angle.tolist(),
+                                   strict=True)
+                               if mm == m), key=lambda x: x[0]):
+            if run and math.isclose(run[-1][1], a) and math.isclose(run[-1][2], p):
+                run[-1][1] = b
+            else:
+                run.append([a, b, p])
+        expect += [(m, a, b, p) for a, b, p in run]
+    got = list(zip(*(v.tolist() for v in merge_pieces(move, t0, t1, angle)), strict=True))
+    assert got == expect
+    assert len(got) < n
