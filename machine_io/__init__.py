@@ -31,6 +31,7 @@ from machine_io.host import (
 from machine_io.program import (
     MachineState,
     Program,
+    executed_as_streamed,
     load_program,
     parse_program,
     restore_commands,
@@ -50,6 +51,7 @@ __all__ = [
     "StreamReport",
     "Transcript",
     "checksum",
+    "executed_as_streamed",
     "frame",
     "load_program",
     "open_port",

@@ -253,6 +253,11 @@ class StreamReport:
         Notable events in order (firmware errors, restarts, pauses).
     temperatures
         Last reported temperatures.
+    in_doubt
+        Per firmware restart, ``(first program index, count)`` of the commands that
+        were sent but not acknowledged when it restarted and were sent again after
+        it: any of the first of them may have run twice (their ``ok`` lost on the
+        way, say). Nothing on the wire can tell.
     """
 
     source: str
@@ -274,6 +279,7 @@ class StreamReport:
     injected: tuple[tuple[int, tuple[str, ...]], ...] = ()
     events: tuple[str, ...] = ()
     temperatures: dict[str, tuple[float, float | None]] = field(default_factory=dict)
+    in_doubt: tuple[tuple[int, int], ...] = ()
 
     @property
     def resend_ratio(self) -> float:
@@ -296,6 +302,7 @@ class StreamReport:
             "injected": [[i, list(c)] for i, c in self.injected],
             "events": list(self.events),
             "temperatures": {k: list(v) for k, v in self.temperatures.items()},
+            "in_doubt": [list(d) for d in self.in_doubt],
         }
 
 
@@ -602,6 +609,7 @@ class Host:
         self._barrier_ok = False
         self._stop_reason: str | None = None
         self._injected: list[tuple[int, tuple[str, ...]]] = []
+        self._in_doubt: list[tuple[int, int]] = []
         self._restarted = self._fatal = self._failed = False
         self._suspicious = 0
         self._error_kind: str | None = None
@@ -1232,6 +1240,7 @@ class Host:
         unacked = [self._owner[n] for n in range(self._acked + 1, self._max_sent + 1)
                    if self._owner[n] >= 0]
         if unacked:
+            self._in_doubt.append((unacked[0], len(unacked)))
             self._note(f"the firmware restarted with commands {unacked[0] + 1}–{unacked[-1] + 1} "
                        f"unacknowledged; resending them (any of them may have run before the "
                        f"restart)")
@@ -1289,7 +1298,8 @@ class Host:
             program.source, self.port_name, self.firmware, mode, len(program), self._start,
             acknowledged, completed, stopped, self._lines_sent, self._resends, self._stale,
             self._timeouts, self._reconnects, elapsed, self._bytes_sent,
-            tuple(self._injected), tuple(self._events), dict(self.temperatures))
+            tuple(self._injected), tuple(self._events), dict(self.temperatures),
+            tuple(self._in_doubt))
 
     def _where(self, report: StreamReport) -> str:
         program = self._program

@@ -19,13 +19,18 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from machine_io.protocol import EXTRA_AXES, command_code
 from printability.errors import InputError, PrintabilityOSError
 
+if TYPE_CHECKING:  # the report type lives in host.py, which imports this module
+    from machine_io.host import StreamReport
+
 __all__ = [
     "MachineState",
     "Program",
+    "executed_as_streamed",
     "load_program",
     "parse_program",
     "restore_commands",
@@ -412,3 +417,36 @@ def _estimate(commands: Iterable[str]) -> tuple[list[float], set[str]]:
                 total += words.get("S", 0.0) + words.get("P", 0.0) / 1000.0
         out.append(total)
     return out, axes
+
+
+def executed_as_streamed(executed: list[str], commands: list[str],
+                         report: StreamReport) -> bool:
+    """Whether the firmware ran exactly ``commands`` once each, in order, with the host's
+    own commands (``report.injected``) where it put them.
+
+    One ambiguity is allowed, the one no host can resolve: commands sent but not
+    acknowledged when the firmware restarted (``report.in_doubt``) are sent again
+    after it, so some of them may also appear once just before the restart.
+    """
+    doubt = dict(report.in_doubt)
+    expected: list[tuple[str, list[str]]] = []  # ("fixed" | "maybe", commands)
+    cut = 0
+    for at, cmds in report.injected:
+        expected.append(("fixed", commands[cut:at]))
+        if at in doubt:
+            expected.append(("maybe", commands[at:at + doubt.pop(at)]))
+        expected.append(("fixed", list(cmds)))
+        cut = at
+    expected.append(("fixed", commands[cut:]))
+    pos = 0
+    for kind, part in expected:
+        if kind == "maybe":
+            j = 0
+            while j < len(part) and pos + j < len(executed) and executed[pos + j] == part[j]:
+                j += 1
+            pos += j
+        else:
+            if executed[pos:pos + len(part)] != part:
+                return False
+            pos += len(part)
+    return pos == len(executed)

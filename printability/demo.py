@@ -179,7 +179,7 @@ def run_demo(
     InputError, PrintabilityOSError
         Bad options, unreadable part, unwritable folder.
     """
-    from machine_io import Host, HostConfig, Transcript, parse_program
+    from machine_io import Host, HostConfig, Transcript, executed_as_streamed, parse_program
     from printability.analysis import analyze
     from printability.generate import GenerateOptions, generate_gcode
     from printability.nozzle import parse_nozzle
@@ -231,10 +231,7 @@ def run_demo(
     files.append(transcript_path)
     executed = [t for _, t in link.firmware.executed
                 if not t.startswith(("M110", "M115", "M114"))]
-    expected = list(program.commands)
-    for at, cmds in reversed(report.injected):
-        expected[at:at] = cmds
-    log_matches = executed == expected
+    log_matches = executed_as_streamed(executed, list(program.commands), report)
     if not log_matches:
         raise PrinterError("the simulator did not execute exactly the streamed file (see "
                            f"{transcript_path}); the host lost or repeated a command")

@@ -156,7 +156,7 @@ def test_firmware_errors_follow_the_policy(policy):
 
 
 def test_cancel_finishes_lines_in_flight_then_sends_the_cancel_sequence():
-    p = program(3000)
+    p = program(20000)  # long enough to still be streaming at the first progress report
     with FakeMarlin() as fw, Host(fw.path, config=HostConfig(**FAST)) as host:
         host.connect()
         seen = []
@@ -175,7 +175,7 @@ def test_cancel_finishes_lines_in_flight_then_sends_the_cancel_sequence():
 
 
 def test_pause_and_resume_lose_nothing():
-    p = program(3000)
+    p = program(20000)  # still streaming at the first progress report
     cfg = HostConfig(pause_gcode=("G91", "G1 Z5", "G90"), **FAST)
     with FakeMarlin() as fw, Host(fw.path, config=cfg) as host:
         host.connect()

@@ -185,3 +185,29 @@ def test_real_slicer_files_load(shared_data):
         p = load_program(shared_data / "gcode" / name)
         assert len(p) > 1000 and p.total_seconds > 60
         assert all(c == c.strip() and ";" not in c for c in p.commands)
+
+
+def _report(injected=(), in_doubt=()):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(injected=tuple(injected), in_doubt=tuple(in_doubt))
+
+
+def test_executed_as_streamed_allows_only_the_in_doubt_repeat():
+    from machine_io import executed_as_streamed
+
+    cmds = [f"G1 X{i}" for i in range(6)]
+    restore = ["M104 S200", "G92 E0"]
+    rep = _report([(3, restore), (6, ("M105",))], [(3, 2)])
+    ok = cmds[:3] + restore + cmds[3:] + ["M105"]
+    assert executed_as_streamed(ok, cmds, rep)
+    # the first or both unacknowledged commands also ran before the restart
+    assert executed_as_streamed(cmds[:4] + restore + cmds[3:] + ["M105"], cmds, rep)
+    assert executed_as_streamed(cmds[:5] + restore + cmds[3:] + ["M105"], cmds, rep)
+    # but not a third one, nor any repeat without a restart, nor a loss, nor a swap
+    assert not executed_as_streamed(cmds[:6] + restore + cmds[3:] + ["M105"], cmds, rep)
+    assert not executed_as_streamed(cmds[:4] + restore + cmds[3:] + ["M105"], cmds,
+                                    _report([(3, restore), (6, ("M105",))]))
+    assert not executed_as_streamed(cmds[:3] + restore + cmds[4:] + ["M105"], cmds, rep)
+    swapped = cmds[:3] + restore + [cmds[4], cmds[3], cmds[5]] + ["M105"]
+    assert not executed_as_streamed(swapped, cmds, rep)
