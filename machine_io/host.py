@@ -18,6 +18,15 @@ How it keeps its promise (every command of the file executed once, in order):
   reported free command slots (``ok … B<free>``) and never more bytes than its
   receive buffer holds; without such reports it is strict ping-pong.
 
+Where the promise ends: a firmware *restart* (a board reset, a new ``start``
+banner mid-print) forgets its line numbers and its planner. The host resumes
+after the last acknowledged command, with the machine state restored. Two
+things no host can know from the wire: moves the board had acknowledged but
+not yet run are lost with its planner (the simulator's record lists them as
+``lost_in_reset``), and commands sent but not yet acknowledged when it
+restarted may have run before it; they are sent again and reported in
+:attr:`StreamReport.in_doubt`.
+
 One thread does everything (send, read, timers); :meth:`Host.pause`,
 :meth:`Host.resume` and :meth:`Host.cancel` only set flags, so they may be
 called from another thread or a signal handler. Ctrl-C while streaming
