@@ -82,6 +82,17 @@ def boundary_grid(target: BaseGeometry) -> tuple:
 
 
 @numba.njit(cache=True)
+def _cell(v, v0, cell, n):  # pragma: no cover
+    """Grid column (or row) of the coordinate ``v``, clamped to the grid.
+
+    Every binning and every look-up goes through this one monotone function, which
+    is all the scans rely on (an edge is listed in every cell its box reaches);
+    ``math.floor`` of a quotient, as a float ``//`` is compiled to a call to fmod.
+    """
+    return min(max(math.floor((v - v0) / cell), 0), n - 1)
+
+
+@numba.njit(cache=True)
 def _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny):  # pragma: no cover
     """CSR of the grid cells each edge's bounding box overlaps (two passes: count, fill)."""
     count = np.zeros(nx * ny + 1, np.int64)
@@ -92,10 +103,10 @@ def _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny):  # pragma: no cover
             items = np.empty(count[nx * ny], np.int64)
             fill = count[:-1].copy()
         for e in range(len(ex0)):
-            ix0 = min(max(int((min(ex0[e], ex1[e]) - x0) // cell), 0), nx - 1)
-            ix1 = min(max(int((max(ex0[e], ex1[e]) - x0) // cell), 0), nx - 1)
-            iy0 = min(max(int((min(ey0[e], ey1[e]) - y0) // cell), 0), ny - 1)
-            iy1 = min(max(int((max(ey0[e], ey1[e]) - y0) // cell), 0), ny - 1)
+            ix0 = _cell(min(ex0[e], ex1[e]), x0, cell, nx)
+            ix1 = _cell(max(ex0[e], ex1[e]), x0, cell, nx)
+            iy0 = _cell(min(ey0[e], ey1[e]), y0, cell, ny)
+            iy1 = _cell(max(ey0[e], ey1[e]), y0, cell, ny)
             for iy in range(iy0, iy1 + 1):
                 for ix in range(ix0, ix1 + 1):
                     c = iy * nx + ix
@@ -166,10 +177,10 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
         by0 -= eps
         bx1 += eps
         by1 += eps
-        ix0 = min(max(int((bx0 - x0) // cell), 0), nx - 1)
-        ix1 = min(max(int((bx1 - x0) // cell), 0), nx - 1)
-        iy0 = min(max(int((by0 - y0) // cell), 0), ny - 1)
-        iy1 = min(max(int((by1 - y0) // cell), 0), ny - 1)
+        ix0 = _cell(bx0, x0, cell, nx)
+        ix1 = _cell(bx1, x0, cell, nx)
+        iy0 = _cell(by0, y0, cell, ny)
+        iy1 = _cell(by1, y0, cell, ny)
         state = 1
         for iy in range(iy0, iy1 + 1):
             for ix in range(ix0, ix1 + 1):
@@ -204,10 +215,10 @@ def _edges_state(cu, su, h, bx0, by0, bx1, by1, ex0, ey0, ex1, ey1, start, items
 
     ``bx0``… is the ring's bounding box already grown by ``eps``.
     """
-    ix0 = min(max(int((bx0 - x0) // cell), 0), nx - 1)
-    ix1 = min(max(int((bx1 - x0) // cell), 0), nx - 1)
-    iy0 = min(max(int((by0 - y0) // cell), 0), ny - 1)
-    iy1 = min(max(int((by1 - y0) // cell), 0), ny - 1)
+    ix0 = _cell(bx0, x0, cell, nx)
+    ix1 = _cell(bx1, x0, cell, nx)
+    iy0 = _cell(by0, y0, cell, ny)
+    iy1 = _cell(by1, y0, cell, ny)
     state = 1
     for iy in range(iy0, iy1 + 1):
         for ix in range(ix0, ix1 + 1):
@@ -242,8 +253,8 @@ def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # 
     only compared with the point's, which is far from the edge, so its rounding
     cannot flip the count.
     """
-    iy = min(max(int((py - y0) // cell), 0), ny - 1)
-    ix = min(max(int((px - x0) // cell), 0), nx - 1)
+    iy = _cell(py, y0, cell, ny)
+    ix = _cell(px, x0, cell, nx)
     right = nx - 1 - ix <= ix
     lo = ix if right else 0
     hi = nx - 1 if right else ix
@@ -259,9 +270,9 @@ def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # 
             if (ay > py) == (by > py):
                 continue
             if right:
-                first = max(ix, min(max(int((min(ax, bx) - x0) // cell), 0), nx - 1))
+                first = max(ix, _cell(min(ax, bx), x0, cell, nx))
             else:
-                first = min(ix, min(max(int((max(ax, bx) - x0) // cell), 0), nx - 1))
+                first = min(ix, _cell(max(ax, bx), x0, cell, nx))
             if col != first:
                 continue  # counted in another cell of the row
             xc = ax + (py - ay) * (bx - ax) / (by - ay)
@@ -350,8 +361,8 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                     ay = ey0[e]
                     bx = ex1[e]
                     by = ey1[e]
-                    if _clip(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
-                        continue
+                    # only the refusal test: the shortcut never accepts, so whether
+                    # the edge meets the footprint grown by eps is left to the scan
                     if _clip(ax, ay, bx, by, cu, su, h, -eps, order) \
                             * math.hypot(bx - ax, by - ay) > eps:
                         for rr in range(r, 0, -1):
