@@ -282,6 +282,66 @@ def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # 
 
 
 @numba.njit(cache=True)
+def _point_segment2(px, py, ax, ay, bx, by):  # pragma: no cover
+    """Squared distance from a point to the segment [a, b]."""
+    dx = bx - ax
+    dy = by - ay
+    ll = dx * dx + dy * dy
+    t = 0.0
+    if ll > 0.0:
+        t = min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / ll))
+    qx = ax + t * dx - px
+    qy = ay + t * dy - py
+    return qx * qx + qy * qy
+
+
+@numba.njit(cache=True)
+def _segments2(ax, ay, bx, by, cx, cy, dx, dy):  # pragma: no cover
+    """Squared distance between the segments [a, b] and [c, d] (0 when they cross)."""
+    o1 = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    o2 = (bx - ax) * (dy - ay) - (by - ay) * (dx - ax)
+    o3 = (dx - cx) * (ay - cy) - (dy - cy) * (ax - cx)
+    o4 = (dx - cx) * (by - cy) - (dy - cy) * (bx - cx)
+    if o1 * o2 < 0.0 and o3 * o4 < 0.0:
+        return 0.0
+    return min(_point_segment2(ax, ay, cx, cy, dx, dy), _point_segment2(bx, by, cx, cy, dx, dy),
+               _point_segment2(cx, cy, ax, ay, bx, by), _point_segment2(dx, dy, ax, ay, bx, by))
+
+
+_DEEP = 1e-3
+"""Relative margin of :func:`_deep_in_sweep`: orders above rounding, far below a footprint."""
+
+
+@numba.njit(cache=True)
+def _deep_in_sweep(ex0, ey0, ex1, ey1, sx, sy, a, b, cx, cy, rc, rs, c, s, sc):  # pragma: no cover
+    """Whether the edge [e0, e1] (relative to the move's start) has a piece well inside the
+    ellipse (semi-axes ``a``, ``b``, centre ``cx``, ``cy``, rotation ``rc``, ``rs``) at
+    orientation ``c``, ``s`` scaled by ``sc`` swept from 0 to ``(sx, sy)``.
+
+    In the frame where that ellipse is the unit disk the swept set is the set of points
+    within 1 of a segment; an edge within ``1 - _DEEP`` of it has a piece longer than
+    ``_DEEP / 2 · min(a, b) · sc`` (or the whole edge) more than that deep in the swept
+    set, hence in every polygon around it, far beyond ``EPS``. A sufficient test of
+    refusal, needing no half-plane: a rectangle holds the ellipse of its semi-axes.
+    """
+    # M = diag(1/a, 1/b) R(-rotation) R(-phi) / scale
+    m00 = (rc * c - rs * s) / (a * sc)
+    m01 = (rc * s + rs * c) / (a * sc)
+    m10 = (-rs * c - rc * s) / (b * sc)
+    m11 = (-rs * s + rc * c) / (b * sc)
+    qx = (rc * cx + rs * cy) / a
+    qy = (-rs * cx + rc * cy) / b
+    ax = m00 * ex0 + m01 * ey0
+    ay = m10 * ex0 + m11 * ey0
+    bx = m00 * ex1 + m01 * ey1
+    by = m10 * ex1 + m11 * ey1
+    tx = m00 * sx + m01 * sy + qx
+    ty = m10 * sx + m11 * sy + qy
+    lim = 1.0 - _DEEP
+    return _segments2(ax, ay, bx, by, qx, qy, tx, ty) < lim * lim
+
+
+@numba.njit(cache=True)
 def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gseg, c0, s0, c1, s1,
                k, gpos, gend, cb, sb, det, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx,
                ny, eps, order, out_idx, out_state):  # pragma: no cover
@@ -307,13 +367,16 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
     from ∂G: the answer ``shapely.intersects_xy`` gives. Nothing is stored per
     footprint, which is what made one call per candidate expensive.
 
-    Two shortcuts, neither of which changes an answer:
+    Shortcuts, none of which changes an answer:
 
     * the four edges that last refused a footprint are tried first, before
       the footprint's box and cells (consecutive candidates are mostly refused
       by the same corner): an edge with a piece strictly inside the footprint
       is a refusal whichever edge the scan would have met first, and the scan
-      finds such an edge (the piece lies in the footprint's box and cells);
+      finds such an edge (the piece lies in the footprint's box and cells).
+      Without a turn they are first tested against the ellipses swept
+      (:func:`_deep_in_sweep`, before any half-plane is computed: most
+      candidates end there), then with :func:`_clip`;
     * the point located is the segment's start where it lies in every
       footprint (pieces centred on the nozzle, not mirrored by a negative
       scale: their half-planes hold it, the rounding included, since the
@@ -347,6 +410,32 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                 last = m
                 where = -1
             state = 1
+            if not turning:
+                # the edges that refused the last footprints, tested against the ellipse
+                # swept (no half-plane needed): most candidates end here
+                sc = scale[m] if scaled else 1.0
+                for p in range(len(kind)):
+                    if pa[p] <= 0.0 or pb[p] <= 0.0 or not sc * min(pa[p], pb[p]) >= 1e-3:
+                        continue
+                    for r in range(len(mru)):
+                        e = mru[r]
+                        if e < 0:
+                            break
+                        if math.hypot(ex1[e] - ex0[e], ey1[e] - ey0[e]) < 1e-6:
+                            continue
+                        if _deep_in_sweep(ex0[e] - p0[m, 0], ey0[e] - p0[m, 1],
+                                          ex1[e] - p0[m, 0], ey1[e] - p0[m, 1],
+                                          p1[m, 0] - p0[m, 0], p1[m, 1] - p0[m, 1], pa[p], pb[p],
+                                          pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q], sc):
+                            for rr in range(r, 0, -1):
+                                mru[rr] = mru[rr - 1]
+                            mru[0] = e
+                            state = 0
+                            break
+                    if state == 0:
+                        break
+                if state == 0:
+                    continue
             for p in range(len(kind)):
                 _offsets(kind[p], pa[p], pb[p], pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q],
                          c1[q] if turning else 0.0, s1[q] if turning else 0.0,

@@ -8,6 +8,8 @@ random targets with holes, including footprints that touch ∂G exactly.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import shapely
@@ -229,8 +231,9 @@ def test_smooth_chain_is_the_python_loop():
 @pytest.mark.parametrize("seed", range(2))
 def test_first_fit_of_groups_is_shapely_on_random_targets(nozzle, seed):
     """Many candidates per move, tried in order (the edges that refused the last
-    footprints tried first, the move's start located once): the first that fits is the
-    one shapely.covers finds, candidate by candidate."""
+    footprints tried first, against the swept ellipses, then the half-planes; the move's
+    start located once): the first that fits is the one shapely.covers finds, candidate
+    by candidate, plain and scaled."""
     rng = np.random.default_rng(30 + seed)
     target = grown_target(_random_target(rng), 0.0)
     n, per = 400, 18
@@ -240,12 +243,13 @@ def test_first_fit_of_groups_is_shapely_on_random_targets(nozzle, seed):
     angle = rng.uniform(-400, 400, n * per)
     gpos = np.arange(n) * per
     pieces = convex_pieces(parse_nozzle(nozzle))
-    fast = orientation._first_fit(target, pieces, p0, p1, None, seg, angle, None, gpos,
-                                  gpos + per)
-    slow = orientation._first_fit_reference(target, pieces, p0, p1, None, seg, angle, gpos,
-                                            gpos + per)
-    np.testing.assert_array_equal(fast, slow)
-    assert (fast >= 0).any() and (fast < 0).any()
+    for scale in (None, rng.uniform(0.3, 1.0, n)):
+        fast = orientation._first_fit(target, pieces, p0, p1, scale, seg, angle, None, gpos,
+                                      gpos + per)
+        slow = orientation._first_fit_reference(target, pieces, p0, p1, scale, seg, angle, gpos,
+                                                gpos + per)
+        np.testing.assert_array_equal(fast, slow)
+        assert (fast >= 0).any() and (fast < 0).any()
 
 
 def test_merge_pieces_is_the_python_loop():
@@ -277,3 +281,36 @@ def test_merge_pieces_is_the_python_loop():
     got = list(zip(*(v.tolist() for v in merge_pieces(move, t0, t1, angle)), strict=True))
     assert got == expect
     assert len(got) < n
+
+
+@pytest.mark.parametrize("nozzle", [*NOZZLES, "ellipse:major=0.8,minor=0.3,rot=30,x=0.1"])
+def test_deep_in_sweep_only_where_the_edge_enters_the_footprint(nozzle):
+    """The refusal shortcut of the remembered edges: where it says an edge has a piece
+    deep in the swept ellipse, the footprint's polygon shrunk by far more than EPS holds
+    a piece of that edge; and it says so for most edges crossing the move."""
+    from printability.motion.fastfit import _deep_in_sweep
+
+    rng = np.random.default_rng(3)
+    (piece,) = convex_pieces(parse_nozzle(nozzle))
+    kind, a, b, cx, cy, rc, rs = orientation._piece_params(piece)
+    n = 2000
+    p0 = rng.uniform(-1, 1, (n, 2))
+    p1 = p0 + rng.normal(0, 0.5, (n, 2))
+    angle = rng.uniform(-200, 200, n)
+    scale = rng.uniform(0.3, 1.0, n)
+    e0 = rng.uniform(-1.5, 1.5, (n, 2))
+    e1 = e0 + rng.normal(0, 0.3, (n, 2))
+    rings = orientation.swept_rings(piece, p0, p1, angle, scale=scale)
+    deep = 0
+    for i in range(n):
+        c, s = math.cos(math.radians(angle[i])), math.sin(math.radians(angle[i]))
+        d = _deep_in_sweep(*(e0[i] - p0[i]), *(e1[i] - p0[i]), *(p1[i] - p0[i]), a, b, cx, cy,
+                           rc, rs, c, s, scale[i])
+        inner = shapely.Polygon(rings[i]).buffer(-1e-7)
+        edge = shapely.LineString([e0[i], e1[i]])
+        if d:
+            deep += 1
+            assert inner.intersection(edge).length > 1e-8, i
+        elif not inner.buffer(-0.01).intersection(edge).is_empty and kind == 0:
+            raise AssertionError(f"edge {i} deep in the ellipse swept, not found")
+    assert deep > n // 20
