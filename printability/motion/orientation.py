@@ -695,16 +695,20 @@ def plan_orientations(
         # ends at every orientation; short moves are searched at every orientation here.
         step = options.split_length or max(0.05, nozzle.radius / 4)
         long_move = np.hypot(*(p1[bad] - p0[bad]).T) > 4 * step
-        found, best = _search(prepared_target, pieces, p0[bad], p1[bad], direction[bad],
-                              widths[bad], prev_bad, cands, beta, wtab, per, options, sc,
-                              limit=np.where(long_move, 8, len(cands)))
+        # the candidates in order of cost, once for the search and the split (a move's
+        # row depends on its direction, width and previous orientation only)
+        near, order = _cost_order(direction[bad], widths[bad], prev_bad, cands, beta, wtab,
+                                  per, options)
+        found, best = _search_ordered(prepared_target, pieces, p0[bad], p1[bad], near, order,
+                                      sc, limit=np.where(long_move, 8, len(cands)))
         angle[bad[found]] = best[found]
         rest = ~found
         if rest.any():
             split = _split_many(prepared_target, pieces, p0[bad[rest]], p1[bad[rest]],
                                 direction[bad[rest]], widths[bad[rest]], prev_bad[rest], cands,
                                 beta, wtab, per, nozzle, options,
-                                None if sc is None else sc[rest])
+                                None if sc is None else sc[rest],
+                                ordered=(near[rest], order[rest]))
             for i, plist in zip(bad[rest].tolist(), split, strict=True):
                 result_pieces[int(i)] = plist
                 angle[i] = np.nan
@@ -793,10 +797,16 @@ def _search(target, pieces, p0, p1, direction, widths, prev, cands, beta, wtab, 
     best = np.full(k, np.nan)
     if k == 0:
         return found, best
+    near, order = _cost_order(direction, widths, prev, cands, beta, wtab, per, options)
+    return _search_ordered(target, pieces, p0, p1, near, order, scale, limit, fast)
+
+
+def _cost_order(direction, widths, prev, cands, beta, wtab, per, options):
+    """Per move, its candidates unwrapped near ``prev`` and their order of cost (see
+    :func:`_search`)."""
     near, werr, turn = _cost_terms(direction, widths, prev, cands, beta, wtab, per)
     key = werr / max(options.width_slack, 1e-9) + turn / 30.0
-    order = np.argsort(key, axis=1, kind="stable")
-    return _search_ordered(target, pieces, p0, p1, near, order, scale, limit, fast)
+    return near, np.argsort(key, axis=1, kind="stable")
 
 
 def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None, fast=True):
@@ -844,7 +854,7 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
 
 
 def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
-                options, scale=None, fast=True) -> list[list[OrientedPiece]]:
+                options, scale=None, fast=True, ordered=None) -> list[list[OrientedPiece]]:
     """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
     A move usually fails because one end pokes out at a corner: first the
@@ -853,15 +863,17 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     geometrically growing lengths; each trimmed-off part is then searched
     whole at every orientation and, where nothing fits, cut into pieces of
     twice ``split_length`` searched again. A few vectorised searches in all,
-    whatever the number of moves.
+    whatever the number of moves. ``ordered`` is :func:`_cost_order`'s answer for these
+    moves when already known (only where ``prev`` has no NaN: here a NaN counts as 0).
     """
     n = len(a)
     step = options.split_length or max(0.05, nozzle.radius / 4)
     length = np.hypot(*(b - a).T)
-    prev = np.where(np.isnan(prev), 0.0, prev)
-    near, werr, turn = _cost_terms(direction, width, prev, cands, beta, wtab, per)
-    key = werr / max(options.width_slack, 1e-9) + turn / 30.0
-    order_all = np.argsort(key, axis=1, kind="stable")
+    if ordered is None or np.isnan(prev).any():
+        prev = np.where(np.isnan(prev), 0.0, prev)
+        near, order_all = _cost_order(direction, width, prev, cands, beta, wtab, per, options)
+    else:
+        near, order_all = ordered
     top = np.take_along_axis(near, order_all[:, :2], axis=1)
     # the kept middle interval of every move (none: t1 <= t0)
     keep_t0 = np.zeros(n)
