@@ -520,22 +520,31 @@ class Host:
             self.transcript.write("Send", data.decode().strip())
             self._write(data)
             deadline = time.monotonic() + self.config.handshake_timeout
+            refused = False
             while True:
                 line = self._readline(deadline)
                 if line is None:
                     break
                 reply = parse_reply(line)
                 self._observe(reply)
+                if reply.kind in ("error", "resend"):
+                    # The M110 itself was refused (damaged on the wire): the ok that
+                    # follows a Resend is not the handshake's.
+                    refused = True
+                    continue
                 if reply.kind == "ok":
                     # Let a late duplicate reply of an earlier attempt arrive and drop it.
                     quiet = time.monotonic() + 0.05
                     while self._readline(quiet) is not None:
                         quiet = time.monotonic() + 0.05
+                    if refused and reply.number != number:
+                        break
                     return
                 if reply.kind == "start":
                     self._banner_seen = True
                     break  # it reset on the way: ask again
-            self.transcript.write("Note", f"no reply to M110 (attempt {attempt})")
+            self.transcript.write("Note", f"{'M110 refused' if refused else 'no reply to M110'} "
+                                          f"(attempt {attempt})")
         raise PrinterError(
             f"the printer on {self.port_name} did not answer (no reply to 'M110 N{number}' "
             f"after {self.config.handshake_attempts} attempts of "

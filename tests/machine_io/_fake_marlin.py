@@ -142,6 +142,11 @@ class FakeMarlin:
             n = int(head[1:])
             if self._fault(n, "drop"):
                 return
+            if self._fault(n, "restart"):  # the board resets on this line: it is lost
+                self.last_n = 0
+                self._send("start")
+                self._send("echo:Marlin fake")
+                return
             if (n in self.always_corrupt or self._fault(n, "corrupt") or not star
                     or _checksum(body.encode()) != int(cs)):
                 self._resend("checksum mismatch")

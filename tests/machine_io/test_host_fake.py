@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import json
 import threading
+from types import SimpleNamespace
 
 import pytest
 from _fake_marlin import FakeMarlin
 
-from machine_io import Host, HostConfig, Transcript, parse_program
+from machine_io import Host, HostConfig, Transcript, executed_as_streamed, parse_program
 from printability.errors import InputError, PrinterError
 
 FAST = dict(reply_timeout=0.4, banner_timeout=0.3, handshake_timeout=0.5, resend_ok_timeout=0.2,
@@ -57,6 +58,25 @@ def test_every_command_runs_once_in_order(advanced, faults):
     assert report.mode == ("send-ahead" if advanced else "ping-pong")
     if faults in ("corrupt", "drop-line") and not advanced:
         assert report.resends + report.timeouts >= 3
+
+
+def test_a_refused_handshake_after_a_restart_is_asked_again():
+    """The board resets on line 150 and the host's ``M110 N150`` then arrives damaged: the
+    ``ok`` behind the firmware's Resend is not the handshake's, so the host asks again
+    (taking it once made every later line draw 'Resend: 1' and the print stall).
+    Ping-pong, so that line 150 is the last one sent when the board resets."""
+    p = program(300)
+    cfg = HostConfig(**{**FAST, "reconnect_timeout": 5.0})
+    with FakeMarlin(faults={150: ["restart", "corrupt"]}) as fw, \
+            Host(fw.path, config=cfg) as host:
+        host.connect()
+        report = host.stream(p)
+    assert report.completed and report.reconnects == 1
+    # printed() leaves out the M105 end barrier: so does the report checked against it
+    seen = SimpleNamespace(injected=[i for i in report.injected if i[1] != ("M105",)],
+                           in_doubt=report.in_doubt)
+    assert executed_as_streamed(printed(fw), list(p.commands), seen)
+    assert sum(1 for line in fw.received if b"M110 N150" in line) == 2
 
 
 def test_resend_without_ok_is_handled_by_the_timer():
