@@ -160,6 +160,7 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
     covers builds a noded graph of both boundaries for every footprint.
     """
     k = rings.shape[1] - 1
+    found = np.zeros(1, np.int64)
     for m in range(len(todo)):
         i = todo[m]
         bx0 = rings[i, 0, 0]
@@ -173,39 +174,9 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
             bx1 = max(bx1, x)
             by0 = min(by0, y)
             by1 = max(by1, y)
-        bx0 -= eps
-        by0 -= eps
-        bx1 += eps
-        by1 += eps
-        ix0 = _cell(bx0, x0, cell, nx)
-        ix1 = _cell(bx1, x0, cell, nx)
-        iy0 = _cell(by0, y0, cell, ny)
-        iy1 = _cell(by1, y0, cell, ny)
-        state = 1
-        for iy in range(iy0, iy1 + 1):
-            for ix in range(ix0, ix1 + 1):
-                c = iy * nx + ix
-                for q in range(start[c], start[c + 1]):
-                    e = items[q]
-                    ax = ex0[e]
-                    ay = ey0[e]
-                    bx = ex1[e]
-                    by = ey1[e]
-                    if max(ax, bx) < bx0 or min(ax, bx) > bx1 or max(ay, by) < by0 \
-                            or min(ay, by) > by1:
-                        continue  # outside the ring's bounding box (grown by eps)
-                    if _clip(ax, ay, bx, by, cu[i], su[i], h[i], eps, order) < 0.0:
-                        continue  # misses P grown by eps
-                    length = math.hypot(bx - ax, by - ay)
-                    if _clip(ax, ay, bx, by, cu[i], su[i], h[i], -eps, order) * length > eps:
-                        state = 0  # a piece of ∂G strictly inside P
-                        break
-                    state = -1  # grazes: leave it to shapely
-                if state == 0:
-                    break
-            if state == 0:
-                break
-        out[i] = state
+        out[i] = _edges_state(cu[i], su[i], h[i], bx0 - eps, by0 - eps, bx1 + eps, by1 + eps,
+                              ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, eps,
+                              order, found)
 
 
 @numba.njit(cache=True)
