@@ -154,6 +154,10 @@ class Link:
                 return 0.05
             now = self._now()
             t = self.firmware.next_event()
+            if t <= now:
+                # due but not moving (input waits for room in a full receive ring): poll
+                # every millisecond rather than spin
+                t = now + 0.001
             if self._held:
                 t = min(t, self._due(*self._held[0]))
             return max(0.0, min(t - now, 0.05))

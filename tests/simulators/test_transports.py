@@ -84,6 +84,23 @@ def test_real_clock_answers_no_sooner_than_the_wire_carries_line_and_ok():
     assert time.monotonic() - t0 >= (len(line) + len(got)) * 10 / baud
 
 
+def test_a_full_receive_ring_is_polled_not_spun():
+    """A sender without flow control fills the receive ring behind a full planner: input is
+    then due but cannot move, and the servers must not spin on it (they did, a whole core)."""
+    link = Link(make_config(profile="marlin", machine="xy", clock="real", baud=250000))
+    link.connect()
+    moves = b"".join(f"G1 X{10 + (i % 2) * 100} Y10 E0.5 F600\n".encode() for i in range(60))
+    link.feed(b"M302 P1\nG90\n" + moves)
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline:
+        time.sleep(0.02)
+        link.read_available()
+        if not link._held and link.firmware.next_event() <= link._now():
+            break
+    assert link.firmware.next_event() <= link._now()  # input due, the ring full
+    assert link.wait_time() >= 0.0009
+
+
 def test_tcp_socket_url_and_disconnect_fault():
     link = Link(make_config(faults="disconnect@3"))
     with TcpServer(link) as srv:
