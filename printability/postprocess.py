@@ -512,9 +512,8 @@ def _planned_widths(g, seg, seg_move, filament_diameter) -> np.ndarray:
     planned width then fits G by construction."""
     from printability.sources.gcode import segment_widths
 
-    model = "rectangle" if g.slicer == "Cura" else "stadium"
     width, _, _ = segment_widths(g, seg, seg_move, filament_diameter=filament_diameter,
-                                 model=model)
+                                 model="auto")
     return width
 
 

@@ -81,9 +81,19 @@ from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import check_positive, require_file
 
 __all__ = ["BEAD_MODELS", "bead_widths", "layer_regions", "load_gcode_layers",
-           "segment_widths"]
+           "resolve_bead_model", "segment_widths"]
 
 BEAD_MODELS = ("auto", "stadium", "rectangle")
+
+
+def resolve_bead_model(g: GCodeFile, bead_model: str) -> str:
+    """``stadium`` or ``rectangle``; ``auto`` is the rectangle for Cura files (Cura plans
+    its lines as rectangles), the stadium for every other slicer."""
+    if bead_model not in BEAD_MODELS:
+        raise InputError(f"unknown bead model {bead_model!r}; expected one of {BEAD_MODELS}")
+    if bead_model != "auto":
+        return bead_model
+    return "rectangle" if g.slicer == "Cura" else "stadium"
 
 
 def bead_widths(
@@ -163,7 +173,7 @@ def segment_widths(
     seg, mv
         Chords (:meth:`GCodeFile.segments`) and the row of ``g.moves`` of each.
     model
-        ``"stadium"`` or ``"rectangle"`` (``"auto"`` resolved by the caller).
+        One of :data:`BEAD_MODELS` (see :func:`resolve_bead_model`).
 
     Returns
     -------
@@ -182,6 +192,7 @@ def segment_widths(
     widths the cap applies to every width. Zero-length chords take their
     move's width and count for neither the median nor the layer rule.
     """
+    model = resolve_bead_model(g, model)
     m = g.moves
     length = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"])
     has_len = length > 0
@@ -232,11 +243,7 @@ def layer_regions(
             f"unknown feature categories {sorted(unknown)}; "
             f"expected some of {', '.join(CATEGORIES)}"
         )
-    if bead_model not in BEAD_MODELS:
-        raise InputError(f"unknown bead model {bead_model!r}; expected one of {BEAD_MODELS}")
-    model = bead_model
-    if model == "auto":
-        model = "rectangle" if g.slicer == "Cura" else "stadium"
+    model = resolve_bead_model(g, bead_model)
 
     m = g.moves
     cats = g.feature_category_of_moves()
@@ -403,9 +410,7 @@ def load_gcode_layers(
         meta = {"gcode_layers": src, "line": int(g.layers["line"][src[0]]) + 1,
                 **items[0][2]}
         layers.append(Layer(z=z, height=height, region=region, index=k, meta=meta))
-    model = bead_model if bead_model != "auto" else (
-        "rectangle" if g.slicer == "Cura" else "stadium"
-    )
+    model = resolve_bead_model(g, bead_model)
     meta = {
         "format": "gcode",
         "slicer": g.slicer,

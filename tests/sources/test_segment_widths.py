@@ -19,10 +19,9 @@ def test_zero_length_chords_change_no_width(shared_data, name):
     idx = np.flatnonzero(m["is_extrusion"] & part & ~m["wipe"] & (m["layer"] >= 0))
     seg = g.segments(moves=m[idx])
     mv = idx[seg["move"]]
-    model = "rectangle" if g.slicer == "Cura" else "stadium"
-    w_all, derived, _ = segment_widths(g, seg, mv, filament_diameter=1.75, model=model)
+    w_all, derived, _ = segment_widths(g, seg, mv, filament_diameter=1.75, model="auto")
     ok = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"]) > 0
-    w_ok, _, _ = segment_widths(g, seg[ok], mv[ok], filament_diameter=1.75, model=model)
+    w_ok, _, _ = segment_widths(g, seg[ok], mv[ok], filament_diameter=1.75, model="auto")
     np.testing.assert_array_equal(w_all[ok], w_ok)
     # comment widths are kept where given (up to the outlier cap)
     if not derived.all():
