@@ -20,14 +20,7 @@ geometry. The pieces:
 
 from __future__ import annotations
 
-from machine_io.host import (
-    DEFAULT_CANCEL_GCODE,
-    Host,
-    HostConfig,
-    Progress,
-    StreamReport,
-    Transcript,
-)
+from machine_io.host import Host
 from machine_io.program import (
     MachineState,
     Program,
@@ -38,6 +31,13 @@ from machine_io.program import (
     state_at,
 )
 from machine_io.protocol import FirmwareInfo, checksum, frame, parse_reply
+from machine_io.session import (
+    DEFAULT_CANCEL_GCODE,
+    HostConfig,
+    Progress,
+    StreamReport,
+    Transcript,
+)
 from machine_io.transport import open_port
 
 __all__ = [

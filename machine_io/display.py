@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, ProgressColumn, Task, TextColumn
 from rich.text import Text
 
-from machine_io.host import Progress as StreamProgress
+from machine_io.session import Progress as StreamProgress
 
 __all__ = ["format_temperatures", "stream_progress"]
 

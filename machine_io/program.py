@@ -19,13 +19,10 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from machine_io.protocol import EXTRA_AXES, command_code
+from machine_io.session import StreamReport
 from printability.errors import InputError, PrintabilityOSError
-
-if TYPE_CHECKING:  # the report type lives in host.py, which imports this module
-    from machine_io.host import StreamReport
 
 __all__ = [
     "MachineState",
