@@ -33,7 +33,10 @@ every chord swept by a disk of half its planned width, the ``;WIDTH:``
 comments or the width inverted from E). The outer perimeter's centre line is
 therefore exactly w/2 from ∂G; ``tolerance`` (default 1 µm, minus the
 rounding of the coordinates written) absorbs the rounding of coordinates and
-of the polygonal arcs. Non-part moves are left as they are.
+of the polygonal arcs. Footprints are tested against G grown by that
+tolerance, built as the union of one convex polygon per bead
+(:mod:`printability.motion.beadunion`: between G ⊕ τ/2 and G ⊕ τ, without a
+GEOS overlay). Non-part moves are left as they are.
 
 A round nozzle no larger than the one the file was sliced for (the slicer's
 ``nozzle_diameter``) lays the slicer's own beads, each inside G by
@@ -49,7 +52,7 @@ import os
 import re
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,6 +64,7 @@ from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
 from printability.errors import FileFormatError, InputError, PrintabilityOSError
 from printability.machine import Machine, parse_machine
+from printability.motion.beadunion import INNER, bead_union
 from printability.motion.orientation import (
     OrientationOptions,
     grown_target,
@@ -112,8 +116,9 @@ class PostprocessOptions:
     chord_tolerance
         Linearisation of arcs, mm.
     workers
-        Threads that rebuild the layer targets (GEOS unions, which release
-        the GIL) while the planner runs; None: one per CPU core, at most 4.
+        Threads that rebuild the layer targets (compiled kernels and GEOS
+        release the GIL) while the planner runs; None: one per CPU core, at
+        most 4.
     output_name
         New final file name to hand back to the slicer through the
         ``<gcode>.output_name`` file (PrusaSlicer ≥ 2.4 convention); None
@@ -369,16 +374,19 @@ def postprocess_bytes(
     seg = g.segments(moves=moves[part_idx]) if part_idx.size and not narrow_beads else \
         np.zeros(0, dtype=[("x0", "f8"), ("y0", "f8"), ("x1", "f8"), ("y1", "f8"),
                            ("e", "f8"), ("move", "i8")])
+    # new lines are rounded to 4 decimals: keep that displacement inside the tolerance
+    tol_grow = options.tolerance - wopts.rounding
     if part_idx.size and not narrow_beads:
         seg_move = part_idx[seg["move"]]  # index into g.moves
         widths = _planned_widths(g, seg, seg_move, float(fd))
         seg_layer = moves["layer"][seg_move]
-        targets = _layer_targets(g, float(fd), quad_segs, workers=_workers(options))
+        has_target, prepared = _layer_targets(g, float(fd), quad_segs, tol_grow,
+                                              workers=_workers(options))
     else:
         seg_move = np.zeros(0, np.int64)
         widths = np.zeros(0)
         seg_layer = np.zeros(0, np.int64)
-        targets = [None] * n_layers
+        has_target, prepared = [False] * n_layers, iter(())
 
     # ---- plan every layer
     seg_angle = np.zeros(len(seg))
@@ -390,23 +398,20 @@ def postprocess_bytes(
     order = np.argsort(seg_layer, kind="stable") if len(seg) else np.zeros(0, np.int64)
     bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1)) if len(seg) else None
     seg_len = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"]) if len(seg) else np.zeros(0)
-    tol_grow = options.tolerance - wopts.rounding
-    grown = _grown_targets(targets, tol_grow, workers=_workers(options))
     for k in range(n_layers):
-        if targets[k] is None:
+        if not has_target[k]:
             continue
         idx = order[bounds[k]:bounds[k + 1]]
         p0 = np.column_stack([seg["x0"][idx], seg["y0"][idx]])
         p1 = np.column_stack([seg["x1"][idx], seg["y1"][idx]])
-        # new lines are rounded to 4 decimals: keep that displacement inside the tolerance
-        tgt = next(grown)
+        tgt, target_area = next(prepared)
         sm = seg_move[idx]
         chained = np.zeros(idx.size, dtype=bool)
         if idx.size > 1 and policy == "xy":
             same = (sm[1:] == sm[:-1]) | ((sm[1:] == sm[:-1] + 1)
                                           & (np.abs(p0[1:] - p1[:-1]).max(axis=1) < 1e-9))
             chained[1:] = same
-        plan = plan_orientations(p0, p1, widths[idx], targets[k], nozzle, machine,
+        plan = plan_orientations(p0, p1, widths[idx], tgt, nozzle, machine,
                                  options=options.orientation, previous=prev,
                                  prepared_target=tgt, chained=chained,
                                  narrow_beads=narrow_beads)
@@ -424,7 +429,7 @@ def postprocess_bytes(
             kept = sum(p.t1 - p.t0 for p in pieces)
             dropped_area += float(seg_len[idx][i]) * max(0.0, 1 - kept) * float(widths[idx][i])
         reports.append(LayerReport(
-            index=k, z=float(g.layers["z"][k]), target_area=float(targets[k].area),
+            index=k, z=float(g.layers["z"][k]), target_area=target_area,
             moves=int(idx.size), turned=0, split_moves=plan.split_moves,
             dropped_moves=plan.dropped_moves, dropped_length=dl, dropped_area=dropped_area,
             printed_length=float(seg_len[idx].sum()) - dl,
@@ -475,35 +480,75 @@ def _workers(options: PostprocessOptions) -> int:
     return max(1, min(4, os.cpu_count() or 1))
 
 
-def _grown_targets(targets: list, tolerance: float, *, workers: int):
-    """Yield, for each layer with a target, its prepared grown target, in layer order,
-    computed on ``workers`` threads while the caller plans (a GEOS buffer releases the
-    GIL)."""
-    from concurrent.futures import ThreadPoolExecutor
+def _layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float, *,
+                   workers: int = 1) -> tuple[list[bool], Iterator[tuple[object, float]]]:
+    """Per layer, whether it has a target, and for those layers in order (the prepared
+    target the planner tests footprints against, the area of G in mm²).
 
-    todo = [t for t in targets if t is not None]
-    if workers <= 1:
-        yield from (grown_target(t, tolerance) for t in todo)
-        return
-    with ThreadPoolExecutor(workers) as ex:
-        yield from ex.map(lambda t: grown_target(t, tolerance), todo)
-
-
-def _layer_targets(g, filament_diameter: float, quad_segs: int, *, workers: int = 1) -> list:
-    """Per layer, G as :mod:`printability.sources.gcode` rebuilds it (None: no part bead).
-
-    The same reconstruction as ``printability analyze`` on the same file, so
-    the post-processor and the analysis agree on what the part is.
+    G is the union of the layer's beads as :mod:`printability.sources.gcode` rebuilds it
+    (the same reconstruction as ``printability analyze``, so the two agree on what the
+    part is). The planner tests against G grown by ``tolerance``: the bead union of
+    :mod:`printability.motion.beadunion`, built without an overlay, for which the area of
+    G is the union's less ``tolerance``/2 × its perimeter (within that much of the exact
+    area). A tolerance too small for that construction falls back to GEOS (the union,
+    then a buffer), computed on ``workers`` threads while the caller plans.
     """
     from printability.settings import Settings
-    from printability.sources.gcode import layer_regions
+    from printability.sources.gcode import layer_beads, layer_regions
 
-    out: list = [None] * len(g.layers)
-    for li, geom, _facts in layer_regions(g, settings=Settings(quad_segs=quad_segs,
-                                                               workers=workers),
+    settings = Settings(quad_segs=quad_segs, workers=workers)
+    seg, width, _, _, bounds, _ = layer_beads(g, settings=settings,
+                                              filament_diameter=filament_diameter)
+    good = np.isfinite(width) & (width > 0)
+    per_layer = [np.flatnonzero(good[bounds[k]:bounds[k + 1]]) + bounds[k]
+                 for k in range(len(g.layers))]
+    has = [rows.size > 0 for rows in per_layer]
+    r_max = float(width[good].max()) / 2 if good.any() else 0.0
+    if _union_edges(r_max, tolerance) <= 256:
+        def one(rows: np.ndarray) -> tuple[object, float]:
+            s = seg[rows]
+            u = bead_union(np.column_stack([s["x0"], s["y0"]]),
+                           np.column_stack([s["x1"], s["y1"]]), width[rows] / 2,
+                           grow=tolerance)
+            return u, max(0.0, u.area - tolerance / 2 * u.perimeter)
+
+        todo = [rows for rows in per_layer if rows.size]
+        if workers <= 1:
+            return has, map(one, todo)
+        return has, _threaded(one, todo, workers)
+
+    # GEOS: G, then G grown by the tolerance
+    regions = [None] * len(g.layers)
+    for li, geom, _facts in layer_regions(g, settings=settings,
                                           filament_diameter=filament_diameter):
-        out[li] = geom if geom is not None and not geom.is_empty else None
-    return out
+        regions[li] = geom if geom is not None and not geom.is_empty else None
+    has = [r is not None for r in regions]
+    todo = [r for r in regions if r is not None]
+
+    def grown(t) -> tuple[object, float]:
+        return grown_target(t, tolerance), float(t.area)
+
+    if workers <= 1:
+        return has, map(grown, todo)
+    return has, _threaded(grown, todo, workers)
+
+
+def _union_edges(r: float, tolerance: float) -> float:
+    """Edges per half turn of the widest bead's polygon in the bead union (inf: the
+    tolerance is too small for it)."""
+    rho, rmax = r + tolerance / 2, r * INNER + tolerance
+    if not (tolerance > 0 and rho < rmax):
+        return math.inf
+    return math.ceil(math.pi / (2 * math.acos(rho / rmax)))
+
+
+def _threaded(fn, items: list, workers: int):
+    """``map(fn, items)`` on ``workers`` threads, running ahead of the consumer (the
+    kernels release the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(workers) as ex:
+        yield from ex.map(fn, items)
 
 
 def _planned_widths(g, seg, seg_move, filament_diameter) -> np.ndarray:

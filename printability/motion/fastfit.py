@@ -36,8 +36,10 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-__all__ = ["EPS", "boundary_grid", "chain_nearest", "covers_rings", "first_fits",
-           "merge_pieces", "smooth_chain", "swept_kernel"]
+from printability.motion.beadunion import BeadUnion, in_polygons, union_contains_xy, union_covers
+
+__all__ = ["EPS", "boundary_grid", "chain_nearest", "contains_xy", "covers", "covers_rings",
+           "first_fits", "locator", "merge_pieces", "smooth_chain", "swept_kernel"]
 
 EPS = 1e-9
 """Margin (mm) of the half-plane tests against rounding of the ring's vertices."""
@@ -45,8 +47,11 @@ EPS = 1e-9
 _cache: list[tuple[BaseGeometry, tuple]] = []
 
 
-def boundary_grid(target: BaseGeometry) -> tuple:
+def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
     """Edges of ∂G binned on a uniform grid (CSR), cached for the last few targets.
+
+    ``target`` is a shapely geometry or a :class:`~printability.motion.beadunion.BeadUnion`
+    (whose boundary edges are already computed).
 
     Returns
     -------
@@ -58,12 +63,16 @@ def boundary_grid(target: BaseGeometry) -> tuple:
     for g, grid in _cache:
         if g is target:
             return grid
-    parts = shapely.get_parts(shapely.boundary(target))
-    coords, which = shapely.get_coordinates(parts, return_index=True)
-    same = which[1:] == which[:-1]
-    a = coords[:-1][same]
-    b = coords[1:][same]
-    ex0, ey0, ex1, ey1 = (np.ascontiguousarray(v) for v in (a[:, 0], a[:, 1], b[:, 0], b[:, 1]))
+    if isinstance(target, BeadUnion):
+        ex0, ey0, ex1, ey1 = target.ex0, target.ey0, target.ex1, target.ey1
+    else:
+        parts = shapely.get_parts(shapely.boundary(target))
+        coords, which = shapely.get_coordinates(parts, return_index=True)
+        same = which[1:] == which[:-1]
+        a = coords[:-1][same]
+        b = coords[1:][same]
+        ex0, ey0, ex1, ey1 = (np.ascontiguousarray(v)
+                              for v in (a[:, 0], a[:, 1], b[:, 0], b[:, 1]))
     if len(ex0):
         x0, y0 = float(min(ex0.min(), ex1.min())), float(min(ey0.min(), ey1.min()))
         w = float(max(ex0.max(), ex1.max())) - x0
@@ -312,10 +321,34 @@ def _deep_in_sweep(ex0, ey0, ex1, ey1, sx, sy, a, b, cx, cy, rc, rs, c, s, sc): 
     return _segments2(ax, ay, bx, by, qx, qy, tx, ty) < lim * lim
 
 
+_NO_POLYGONS = (np.zeros(1, np.int64), np.zeros(0), np.zeros(0), np.zeros(0),
+                np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0, 1, 1)
+
+
+def locator(target: BaseGeometry | BeadUnion) -> tuple:
+    """What :func:`first_fits` locates points with: a bead union's polygons and their
+    grid, or nothing (a shapely target: parity of ∂G's crossings)."""
+    if isinstance(target, BeadUnion):
+        return (target.off, target.ux, target.uy, target.h, *target.grid)
+    return _NO_POLYGONS
+
+
+@numba.njit(cache=True)
+def _locate(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, loff, lux, luy, lh,
+            lstart, litems, lx0, ly0, lcell, lnx, lny):  # pragma: no cover
+    """Whether a point at least ~``EPS`` from ∂G lies in G: in one of the polygons of a
+    bead union when there are any, else by the parity of ∂G's crossings."""
+    if len(loff) > 1:
+        return in_polygons(px, py, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx,
+                           lny)
+    return _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny)
+
+
 @numba.njit(cache=True)
 def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gseg, c0, s0, c1, s1,
                k, gpos, gend, cb, sb, det, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx,
-               ny, eps, order, out_idx, out_state):  # pragma: no cover
+               ny, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx, lny, eps, order,
+               out_idx, out_state):  # pragma: no cover
     """Per group of candidates, the first whose swept footprint lies inside G.
 
     Candidate ``q`` sweeps the pieces (``kind`` 0 ellipse, 1 rectangle, with
@@ -328,7 +361,8 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
     Group ``g`` tries ``gpos[g] … gend[g] - 1`` in order and stops at the
     first that fits (``out_state`` 1, ``out_idx`` its index), at the first
     ∂G grazes (``out_state`` -1: shapely decides, the caller resumes after it)
-    or finds none (``out_state`` 0, ``out_idx`` -1).
+    or finds none (``out_state`` 0, ``out_idx`` -1). ``loff`` … ``lny`` are
+    :func:`locator`'s: points are located in a bead union's polygons.
 
     Each footprint gets the decision of :func:`covers_rings` on the ring of
     :func:`swept_kernel`: the half-planes are computed by the same code, the
@@ -460,12 +494,15 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                 if st == 1:
                     if centred and not (scaled and scale[m] < 0.0):
                         if where < 0:
-                            where = 1 if _inside(p0[m, 0], p0[m, 1], ex0, ey0, ex1, ey1, start,
-                                                 items, x0, y0, cell, nx, ny) else 0
+                            where = 1 if _locate(p0[m, 0], p0[m, 1], ex0, ey0, ex1, ey1,
+                                                 start, items, x0, y0, cell, nx, ny, loff, lux,
+                                                 luy, lh, lstart, litems, lx0, ly0, lcell, lnx,
+                                                 lny) else 0
                         inside = where == 1
                     else:
-                        inside = _inside(nx0 / det, ny0 / det, ex0, ey0, ex1, ey1, start, items,
-                                         x0, y0, cell, nx, ny)
+                        inside = _locate(nx0 / det, ny0 / det, ex0, ey0, ex1, ey1, start,
+                                         items, x0, y0, cell, nx, ny, loff, lux, luy, lh, lstart,
+                                         litems, lx0, ly0, lcell, lnx, lny)
                     if not inside:
                         st = 0
                 if st == 0:
@@ -522,7 +559,7 @@ def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np
     if n == 0:
         return out
     # a vertex strictly outside G: not inside; otherwise that vertex is a point of G
-    inside = shapely.intersects_xy(target, rings[:, 0, 0], rings[:, 0, 1])
+    inside = contains_xy(target, rings[:, 0, 0], rings[:, 0, 1])
     todo = np.flatnonzero(inside)
     if todo.size == 0:
         return out
@@ -533,8 +570,22 @@ def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np
     out[state == 1] = True
     rest = np.flatnonzero(state == -1)
     if rest.size:
-        out[rest] = shapely.covers(target, shapely.polygons(rings[rest]))
+        out[rest] = covers(target, shapely.polygons(rings[rest]))
     return out
+
+
+def contains_xy(target: BaseGeometry | BeadUnion, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``shapely.intersects_xy(target, x, y)``, for a shapely target or a bead union."""
+    if isinstance(target, BeadUnion):
+        return union_contains_xy(target, x, y)
+    return shapely.intersects_xy(target, x, y)
+
+
+def covers(target: BaseGeometry | BeadUnion, polygons: np.ndarray) -> np.ndarray:
+    """``shapely.covers(target, polygons)``, for a shapely target or a bead union."""
+    if isinstance(target, BeadUnion):
+        return union_covers(target, polygons)
+    return shapely.covers(target, polygons)
 
 
 @numba.njit(cache=True)

@@ -41,8 +41,10 @@ from printability.motion.fastfit import (
     _order,
     boundary_grid,
     chain_nearest,
+    covers,
     covers_rings,
     first_fits,
+    locator,
     merge_pieces,
     smooth_chain,
     swept_kernel,
@@ -364,7 +366,7 @@ def _fits_rings(target, pieces, p0, p1, angle, *, angle_end=None, scale=None, fa
         if fast:
             ok[idx] = covers_rings(target, rings, cu, su, h)
         else:
-            ok[idx] = shapely.covers(target, shapely.polygons(rings))
+            ok[idx] = covers(target, shapely.polygons(rings))
     return ok
 
 
@@ -444,6 +446,7 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
         gseg = np.ascontiguousarray(gseg, dtype=np.int64)
         seg = np.zeros(0, dtype=np.int64)
     grid = boundary_grid(target)
+    loc = locator(target)
     gpos = np.array(gpos, dtype=np.int64)
     gend = np.ascontiguousarray(gend, dtype=np.int64)
     order = _order(directions)
@@ -453,7 +456,7 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
         out_state = np.empty(groups.size, dtype=np.int8)
         first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, sc, seg,
                    gseg[groups] if len(gseg) else gseg, c0, s0, c1, s1, k, gpos[groups],
-                   gend[groups], cb, sb, det, *grid, EPS, order, out_idx, out_state)
+                   gend[groups], cb, sb, det, *grid, *loc, EPS, order, out_idx, out_state)
         fit = out_state == 1
         result[groups[fit]] = out_idx[fit]
         und = np.flatnonzero(out_state == -1)

@@ -80,7 +80,7 @@ from printability.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import check_positive, require_file
 
-__all__ = ["BEAD_MODELS", "bead_widths", "layer_regions", "load_gcode_layers",
+__all__ = ["BEAD_MODELS", "bead_widths", "layer_beads", "layer_regions", "load_gcode_layers",
            "resolve_bead_model", "segment_widths"]
 
 BEAD_MODELS = ("auto", "stadium", "rectangle")
@@ -221,7 +221,7 @@ def segment_widths(
     return width, derived, clipped
 
 
-def layer_regions(
+def layer_beads(
     g: GCodeFile,
     *,
     settings: Settings = DEFAULT_SETTINGS,
@@ -230,11 +230,18 @@ def layer_regions(
     use_width_comments: bool = True,
     exclude: Iterable[str] = NON_PART_CATEGORIES,
     max_width_factor: float = 3.0,
-) -> list[tuple[int, object, dict]]:
-    """Per layer: (layer index, shapely geometry of its beads or None, facts).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, str]:
+    """The beads every layer target is the union of: one chord per row, in file order.
 
-    See :func:`load_gcode_layers` for the parameters. Layers without any
-    bead get ``None``.
+    See :func:`load_gcode_layers` for the parameters.
+
+    Returns
+    -------
+    (seg, width, derived, clipped, bounds, model)
+        Chords (:meth:`GCodeFile.segments`, zero-length ones left out) and
+        their widths as :func:`segment_widths` gives them; layer ``k``'s beads
+        are rows ``bounds[k]:bounds[k + 1]`` (widths may be NaN or 0 there:
+        such chords lay no bead); the bead model used.
     """
     excl = set(exclude)
     unknown = excl - set(CATEGORIES)
@@ -253,12 +260,34 @@ def layer_regions(
     mv = idx[seg["move"]]  # row of g.moves of each segment
     length = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"])
     ok = length > 0
-    seg, mv, length = seg[ok], mv[ok], length[ok]
+    seg, mv = seg[ok], mv[ok]
     layer = m["layer"][mv]
     width, derived, over = segment_widths(g, seg, mv, filament_diameter=filament_diameter,
                                           model=model, use_width_comments=use_width_comments,
                                           max_width_factor=max_width_factor)
     bounds = np.searchsorted(layer, np.arange(len(g.layers) + 1), side="left")
+    return seg, width, derived, over, bounds, model
+
+
+def layer_regions(
+    g: GCodeFile,
+    *,
+    settings: Settings = DEFAULT_SETTINGS,
+    filament_diameter: float = 1.75,
+    bead_model: str = "auto",
+    use_width_comments: bool = True,
+    exclude: Iterable[str] = NON_PART_CATEGORIES,
+    max_width_factor: float = 3.0,
+) -> list[tuple[int, object, dict]]:
+    """Per layer: (layer index, shapely geometry of its beads or None, facts).
+
+    See :func:`load_gcode_layers` for the parameters. Layers without any
+    bead get ``None``.
+    """
+    seg, width, derived, over, bounds, model = layer_beads(
+        g, settings=settings, filament_diameter=filament_diameter, bead_model=bead_model,
+        use_width_comments=use_width_comments, exclude=exclude,
+        max_width_factor=max_width_factor)
 
     def one(li: int) -> tuple[int, object, dict]:
         a, b = bounds[li], bounds[li + 1]

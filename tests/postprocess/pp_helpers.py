@@ -6,7 +6,7 @@ import bisect
 import re
 from collections import defaultdict
 
-__all__ = ["lines_not_kept"]
+__all__ = ["geos_targets", "lines_not_kept"]
 
 _C_WORD = re.compile(rb" C-?[0-9.]+")
 _INSERTED = re.compile(rb"^(G92 E-?[0-9.]+|G1 C-?[0-9.]+|; printability.*)\r?\n?$")
@@ -59,3 +59,16 @@ def lines_not_kept(old: bytes, new: bytes, may_change: set[int]) -> tuple[list[i
         else:
             ptr = j + 1
     return missing, changed
+
+
+def geos_targets(g, filament_diameter: float = 1.75, quad_segs: int = 32) -> list:
+    """Per layer, G rebuilt by GEOS from the file's part beads (None: no bead): the
+    independent reference the deposition checks measure against."""
+    from printability.settings import Settings
+    from printability.sources.gcode import layer_regions
+
+    out: list = [None] * len(g.layers)
+    for li, geom, _facts in layer_regions(g, settings=Settings(quad_segs=quad_segs),
+                                          filament_diameter=filament_diameter):
+        out[li] = geom if geom is not None and not geom.is_empty else None
+    return out

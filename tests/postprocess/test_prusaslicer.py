@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pp_helpers import lines_not_kept
+from pp_helpers import geos_targets, lines_not_kept
 
 from gcode import NON_PART_CATEGORIES, parse_gcode
 from printability.motion.check import check_deposition, extrusion_chords
 from printability.nozzle import parse_nozzle
-from printability.postprocess import _layer_targets, already_processed
+from printability.postprocess import already_processed
 
 CONFIG = Path(__file__).with_name("data") / "prusaslicer_ttr.ini"
 ELLIPSE = "ellipse:major=0.8,minor=0.3"
@@ -62,7 +62,7 @@ def _end_to_end(exe: str, stl: Path, tmp: Path) -> None:
     assert c.size > 0
     assert not np.isin(g1.lines["major"][c], [2, 3]).any()
     # deposition: never outside G beyond the tolerance, on three layers spread over the part
-    targets = _layer_targets(g0, 1.75, 32)
+    targets = geos_targets(g0)
     have = [i for i, t in enumerate(targets) if t is not None]
     layers = sorted({have[0], have[len(have) // 2], have[-1]})
     reports = check_deposition(extrusion_chords(g1), targets, parse_nozzle(ELLIPSE),

@@ -1,0 +1,141 @@
+"""The bead union G' (printability.motion.beadunion) against GEOS.
+
+Oracles: GEOS's union of the very same convex polygons (boundary, area,
+point location), and GEOS's reconstruction of G (quad_segs 32) for the
+promise G ⊕ τ/2 ⊆ G' ⊆ G₃₂ ⊕ τ, on real slicer layers and on random beads.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from gcode import parse_gcode
+from printability.errors import InputError
+from printability.motion.beadunion import bead_union, union_contains_xy, union_covers
+from printability.settings import Settings
+from printability.sources.gcode import layer_beads
+
+TAU = 0.95e-3  # the post-processor's default: 1 µm less the 4-decimal rounding
+
+
+def _edges(u):
+    return shapely.multilinestrings(
+        [[(a, b), (c, d)] for a, b, c, d in zip(u.ex0, u.ey0, u.ex1, u.ey1, strict=True)])
+
+
+def _check_against_geos(p0, p1, r, tau, rng):
+    u = bead_union(p0, p1, r, grow=tau)
+    ref = u.geometry()  # GEOS union of the same polygons
+    # the kept edges are the union's boundary, nothing more, nothing missing
+    # (pieces meeting at a shallow crossing may miss each other by ε/sin θ, ε = 1e-9 mm)
+    assert shapely.hausdorff_distance(ref.boundary, _edges(u)) < 1e-7
+    assert u.area == pytest.approx(ref.area, rel=1e-8, abs=1e-12)
+    assert u.perimeter == pytest.approx(ref.boundary.length, rel=1e-6)
+    x0, y0, x1, y1 = ref.bounds
+    px, py = rng.uniform(x0, x1, 4000), rng.uniform(y0, y1, 4000)
+    np.testing.assert_array_equal(union_contains_xy(u, px, py), shapely.intersects_xy(ref, px, py))
+    # between the beads grown by τ/2 and the 32-segment beads grown by τ
+    lines = shapely.linestrings(np.stack([p0, p1], axis=1))
+    g32 = shapely.union_all(shapely.buffer(lines, r, quad_segs=32))
+    g_half = shapely.union_all(shapely.buffer(lines, r + tau / 2 * (1 - 1e-6), quad_segs=64))
+    assert shapely.difference(ref, g32.buffer(tau, quad_segs=32)).area < 1e-12
+    assert shapely.difference(g_half, ref).area < 1e-12
+    return u
+
+
+def _layers(path, n):
+    g = parse_gcode(path.read_bytes())
+    seg, width, _, _, bounds, _ = layer_beads(g, settings=Settings(quad_segs=32))
+    out = []
+    for k in np.linspace(0, len(g.layers) - 1, n).astype(int):
+        rows = np.arange(bounds[k], bounds[k + 1])
+        rows = rows[np.isfinite(width[rows]) & (width[rows] > 0)]
+        if rows.size:
+            s = seg[rows]
+            out.append((np.column_stack([s["x0"], s["y0"]]), np.column_stack([s["x1"], s["y1"]]),
+                        width[rows] / 2))
+    return out
+
+
+@pytest.mark.parametrize("fixture", ["prusa_short", "benchy_short"])
+def test_real_layers_match_geos(request, fixture):
+    rng = np.random.default_rng(0)
+    layers = _layers(request.getfixturevalue(fixture), 3)
+    assert layers
+    for p0, p1, r in layers:
+        _check_against_geos(p0, p1, r, TAU, rng)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 40),
+       tau=st.sampled_from([0.95e-3, 0.01, 0.05]))
+def test_random_beads_match_geos(seed, n, tau):
+    rng = np.random.default_rng(seed)
+    p0 = rng.uniform(0, 4, (n, 2)).round(3)  # slicer-like: 1 µm coordinates
+    p1 = (p0 + rng.normal(0, 1.0, (n, 2))).round(3)
+    p1[: n // 5] = p0[: n // 5] + np.array([0.5, 0.0])  # some parallel neighbours
+    r = rng.choice([0.2, 0.225, 0.3], n)
+    _check_against_geos(p0, p1, r, tau, rng)
+
+
+def test_a_move_printed_twice_leaves_one_boundary():
+    p0 = np.array([[0.0, 0.0], [0.0, 0.0], [5.0, 0.0]])
+    p1 = np.array([[5.0, 0.0], [5.0, 0.0], [5.0, 3.0]])
+    u = _check_against_geos(p0, p1, np.full(3, 0.225), TAU, np.random.default_rng(1))
+    once = bead_union(p0[1:], p1[1:], np.full(2, 0.225), grow=TAU)
+    assert u.perimeter == pytest.approx(once.perimeter, rel=1e-12)
+    assert u.area == pytest.approx(once.area, rel=1e-12)
+
+
+def test_a_matched_footprint_clears_the_sides():
+    """A bead's own width fits with τ/2 to spare; τ more does not."""
+    u = bead_union(np.array([[0.0, 0.0]]), np.array([[10.0, 0.0]]), np.array([0.225]), grow=TAU)
+    inside = shapely.box(1.0, -0.225, 9.0, 0.225)
+    outside = shapely.box(1.0, -0.225 - TAU, 9.0, 0.225)
+    assert union_covers(u, np.array([inside, outside])).tolist() == [True, False]
+    # the caps: no corner further than r·cos(π/128) + τ from the segment
+    corners = shapely.points(np.column_stack([u.vx, u.vy]))
+    d = shapely.distance(shapely.LineString([(0, 0), (10, 0)]), corners)
+    assert d.max() <= 0.225 * math.cos(math.pi / 128) + TAU + 1e-12
+
+
+def test_empty_and_bad_input():
+    u = bead_union(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), grow=TAU)
+    assert u.is_empty and u.area == 0 and len(u.ex0) == 0
+    assert not union_contains_xy(u, np.array([0.0]), np.array([0.0])).any()
+    with pytest.raises(InputError, match="positive tolerance"):
+        bead_union(np.zeros((1, 2)), np.ones((1, 2)), np.array([0.2]), grow=0.0)
+    with pytest.raises(InputError, match="too small"):
+        bead_union(np.zeros((1, 2)), np.ones((1, 2)), np.array([0.2]), grow=1e-6)
+    with pytest.raises(InputError, match="positive and finite"):
+        bead_union(np.zeros((1, 2)), np.ones((1, 2)), np.array([-0.2]), grow=TAU)
+
+
+@pytest.mark.parametrize("nozzle", ["ellipse:major=0.8,minor=0.3",
+                                    "ellipse:major=0.8,minor=0.3,x=0.3,y=-0.1"])
+def test_the_fused_search_decides_as_geos_on_a_bead_union(nozzle):
+    """``fits`` (fused kernel; points located in the polygons, also for an offset orifice
+    whose footprint need not hold its path) against GEOS's covers on the same union."""
+    from printability.motion.orientation import convex_pieces, fits
+    from printability.nozzle import parse_nozzle
+
+    rng = np.random.default_rng(7)
+    n = 60
+    p0 = rng.uniform(0, 6, (n, 2)).round(3)
+    p1 = (p0 + rng.normal(0, 1.5, (n, 2))).round(3)
+    u = bead_union(p0, p1, np.full(n, 0.3), grow=TAU)
+    m = 3000
+    q0 = rng.uniform(0, 6, (m, 2))
+    q1 = q0 + rng.normal(0, 0.5, (m, 2))
+    angle = rng.uniform(0, 360, m)
+    pieces = convex_pieces(parse_nozzle(nozzle))
+    fast = fits(u, pieces, q0, q1, angle)
+    slow = fits(u, pieces, q0, q1, angle, fast=False)
+    np.testing.assert_array_equal(fast, slow)
+    assert fast.any() and not fast.all()
