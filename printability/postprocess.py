@@ -694,11 +694,36 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
     lo, hi = wopts.angle_min, wopts.angle_max
     chunks = out.chunks
 
+    unbounded = math.isinf(lo) and math.isinf(hi) and lo < 0 < hi
+
     def coord_for(phi: float, *, unwind: bool = False) -> float:
-        c = nearest_equivalent(phi, 0.0 if unwind else cur, period=period, lo=lo, hi=hi)
+        prev = 0.0 if unwind else cur
+        if unbounded:
+            # nearest_equivalent without limits, inlined (the same operations, so the
+            # same bits): it runs once per rewritten move
+            k = round((prev - phi) / period)
+            best = phi + (k - 1) * period
+            bd = abs(best - prev)
+            cand = phi + k * period
+            if abs(cand - prev) < bd - 1e-12:
+                best, bd = cand, abs(cand - prev)
+            cand = phi + (k + 1) * period
+            if abs(cand - prev) < bd - 1e-12:
+                best = cand
+            return best
+        c = nearest_equivalent(phi, prev, period=period, lo=lo, hi=hi)
         if c is None:  # cannot happen: candidates were filtered to reachable ones
             raise InputError(f"orientation {phi:.3f}° is outside the rotary axis limits")
         return c
+
+    angle_texts: dict[float, str] = {}
+
+    def angle_text(c: float) -> str:
+        # rotary coordinates repeat along straight runs and curves: format each once
+        t = angle_texts.get(c)
+        if t is None:
+            t = angle_texts[c] = format_number(c, d_ang)
+        return t
 
     def turn_to(phi: float, c: float, c_text: str, eol: bytes, layer: int) -> None:
         # a turn before the move: folded into the travel before it, else a move of its own
@@ -785,7 +810,7 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
             add: list[str] = []
             if turns and math.isfinite(phi):
                 c = coord_for(phi)
-                c_text = format_number(c, d_ang)
+                c_text = angle_text(c)
                 if s_fold[a0] and abs(c - cur) <= s_turn[a0] + 1e-6:
                     # the turn checked by the planner, made while moving
                     if c_text != cur_text:
@@ -850,7 +875,7 @@ def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
                 c_word = b""
                 if turns and math.isfinite(phi):
                     c = coord_for(phi)
-                    c_text = format_number(c, d_ang)
+                    c_text = angle_text(c)
                     if c_text != cur_text:
                         c_word = (letter + c_text).encode()
                         if not (s_fold[s] and not in_pieces

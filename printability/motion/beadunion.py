@@ -399,6 +399,7 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
                 mark[j] = i
                 near[m] = j
                 m += 1
+        both = m == 2  # near[0] = i - 1, near[1] = i + 1
         for iy in range(_cell(box[i, 1], y0, cell, ny), _cell(box[i, 3], y0, cell, ny) + 1):
             for ix in range(_cell(box[i, 0], x0, cell, nx), _cell(box[i, 2], x0, cell, nx) + 1):
                 c = iy * nx + ix
@@ -434,8 +435,10 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
             my = 0.5 * (py + qy)
             n_iv = 0
             covered = False
+            # the cap at b (edges 1 … k-1) is mostly inside the next chord's polygon
+            ahead = both and 0 < e < d // 2
             for mm in range(m):
-                j = near[mm]
+                j = near[1 - mm] if ahead and mm < 2 else near[mm]
                 if box[j, 0] > hi_x or box[j, 2] < lo_x or box[j, 1] > hi_y or box[j, 3] < lo_y:
                     continue
                 d2 = _point2(mx, my, ax[j], ay[j], bx[j], by[j])

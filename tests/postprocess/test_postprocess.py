@@ -277,3 +277,29 @@ def test_threads_rebuilding_the_targets_change_nothing(shared_data):
     assert outs[1] == outs[3]
     with pytest.raises(InputError, match="workers must be at least 1"):
         postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, workers=0))
+
+
+@pytest.mark.parametrize("key", ["prusa", "benchy"])
+def test_reported_target_area_is_that_of_g(processed, key):
+    """The bead union's area less τ/2 × its perimeter is G's area, within that much."""
+    data, _, res = processed[key]
+    targets = geos_targets(parse_gcode(data))
+    assert res.layers
+    for r in res.layers:
+        g = targets[r.index]
+        tau = 1e-3
+        assert abs(r.target_area - g.area) <= tau / 2 * g.boundary.length * 1.01, r.index
+
+
+def test_a_tolerance_too_small_for_the_bead_union_uses_geos(prusa_short):
+    """Below ~0.15 µm no polygon fits between G ⊕ τ/2 and G₃₂ ⊕ τ: the GEOS path (union,
+    then buffer) plans instead, and plans the same moves where τ does not matter."""
+    data = prusa_short.read_bytes()
+    _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
+                                                                  tolerance=1e-4))
+    targets = geos_targets(parse_gcode(data))
+    for r in res.layers:
+        assert r.target_area == pytest.approx(targets[r.index].area, rel=1e-12)
+    _, res_ref = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE,
+                                                                      machine="ttr"))
+    assert abs(res.split_moves - res_ref.split_moves) <= 0.05 * res_ref.split_moves
