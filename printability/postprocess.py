@@ -46,7 +46,6 @@ or any other shape, is checked move by move with its whole orifice.
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import re
@@ -59,7 +58,6 @@ from pathlib import Path
 import numpy as np
 
 from gcode import NON_PART_CATEGORIES, parse_gcode
-from gcode.rotary import nearest_equivalent
 from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
 from printability.errors import FileFormatError, InputError, PrintabilityOSError
@@ -72,6 +70,7 @@ from printability.motion.orientation import (
 )
 from printability.nozzle import Nozzle, parse_nozzle
 from printability.options import E_POLICIES, FEED_POLICIES
+from printability.rewrite import eol_of, first_command_line, rewrite
 
 __all__ = [
     "LayerReport",
@@ -268,27 +267,6 @@ def _part_mask(g) -> np.ndarray:
     return m["is_extrusion"] & part & ~m["wipe"] & (m["layer"] >= 0)
 
 
-# ----------------------------------------------------------------- the rewrite
-
-
-@dataclass
-class _Out:
-    """Output chunks plus the bookkeeping of what changed."""
-
-    chunks: list[bytes] = field(default_factory=list)
-    changed: int = 0
-    inserted: int = 0
-    rotary_words: int = 0
-
-
-def _eol_of(line: bytes) -> bytes:
-    if line.endswith(b"\r\n"):
-        return b"\r\n"
-    if line.endswith((b"\n", b"\r")):
-        return line[-1:]
-    return b"\n"
-
-
 def postprocess_bytes(
     data: bytes,
     *,
@@ -436,10 +414,9 @@ def postprocess_bytes(
         ))
 
     # ---- rewrite
-    out, turned_per_layer = _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
-                                     seg_width_laid,
-                                     seg_pieces, widths, heights, wopts, turns, e_policy,
-                                     nozzle, options)
+    out, turned_per_layer = rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
+                                    seg_width_laid, seg_pieces, widths, heights, wopts, turns,
+                                    e_policy, nozzle)
     reports = [LayerReport(**{**r.__dict__, "turned": turned_per_layer.get(r.index, 0)})
                for r in reports]
     summary = [{"z": r.z, "target_area": r.target_area, "lost_area": r.dropped_area,
@@ -455,8 +432,8 @@ def postprocess_bytes(
                      "every move is kept as it is")
     head = header_lines(version=__version__, nozzle=nozzle.spec, machine=machine.spec,
                         options=wopts, mode="postprocessed", summary=summary, notes=notes)
-    first_cmd = _first_command_line(lines)
-    eol = _eol_of(g.line(first_cmd)) if len(lines) else b"\n"
+    first_cmd = first_command_line(lines)
+    eol = eol_of(g.line(first_cmd)) if len(lines) else b"\n"
     block = b"".join(h.encode("utf-8") + eol for h in head)
     body = out.chunks
     body.insert(first_cmd, block)
@@ -560,414 +537,6 @@ def _planned_widths(g, seg, seg_move, filament_diameter) -> np.ndarray:
     width, _, _ = segment_widths(g, seg, seg_move, filament_diameter=filament_diameter,
                                  model="auto")
     return width
-
-
-@dataclass(frozen=True)
-class _ZRamp:
-    """Z along a climbing move's chords (spiral vase), by path length."""
-
-    z0: float
-    z1: float
-    first: int  # index of the move's first chord
-    length: list[float]
-    start: list[float]  # path length before each chord; the last item is the total
-    decimals: int
-
-    def word(self, s: int, t: float) -> bytes:
-        """`` Z…`` at fraction ``t`` of chord ``s``."""
-        total = self.start[-1] if self.start[-1] > 0 else 1.0
-        k = s - self.first
-        z = self.z0 + (self.z1 - self.z0) * min(1.0, (self.start[k] + t * self.length[k]) / total)
-        return b" Z" + format_number(z, self.decimals).encode()
-
-
-def _no_z_word(s: int, t: float) -> bytes:
-    return b""
-
-
-def _first_command_line(lines: np.ndarray) -> int:
-    from gcode._lexer import KIND_BLANK, KIND_COMMENT
-
-    idx = np.flatnonzero((lines["kind"] != KIND_COMMENT) & (lines["kind"] != KIND_BLANK))
-    return int(idx[0]) if idx.size else len(lines)
-
-
-def _rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, seg_pieces,
-             widths,
-             heights, wopts: WriterOptions, turns: bool, e_policy: str, nozzle: Nozzle,
-             options: PostprocessOptions):
-    """Copy the file, rewriting the part extrusions that need it.
-
-    Only the lines of moves that may change are looked at one by one; the runs of
-    lines between them are copied as single slices of ``data``. The chunks of the
-    result are one per line up to the first command line (the header goes there),
-    then runs and rewritten lines.
-    """
-    from gcode.line import parse_line
-    from gcode.rotary import bead_area
-    from gcode.writer import edit_line, simple_move_words
-
-    out = _Out()
-    n_lines = len(g.lines)
-    starts = [*g.lines["start"].tolist(), len(data)]
-    n_moves = len(moves)
-    # chords of each move (a later run of chords of the same move wins, as in a dict)
-    first_seg: dict[int, tuple[int, int]] = {}
-    has_seg = np.zeros(n_moves, dtype=bool)
-    with_pieces = np.zeros(n_moves, dtype=bool)
-    if len(seg):
-        change = np.flatnonzero(np.diff(seg_move)) + 1
-        b = np.concatenate([[0], change, [len(seg_move)]])
-        first_seg = dict(zip(seg_move[b[:-1]].tolist(),
-                             zip(b[:-1].tolist(), b[1:].tolist(), strict=True), strict=True))
-        keys = np.fromiter(first_seg, dtype=np.int64, count=len(first_seg))
-        ranges = np.array(list(first_seg.values()), dtype=np.int64).reshape(-1, 2)
-        has_seg[keys] = True
-        piece_flag = np.zeros(len(seg) + 1, dtype=np.int64)
-        if seg_pieces:
-            piece_flag[np.fromiter(seg_pieces, dtype=np.int64, count=len(seg_pieces)) + 1] = 1
-        csum = np.cumsum(piece_flag)
-        with_pieces[keys] = csum[ranges[:, 1]] > csum[ranges[:, 0]]
-
-    # the move of each line: the last move listed on it
-    mv_line = moves["line"].astype(np.int64)
-    lines_u, last_rev = np.unique(mv_line[::-1], return_index=True)
-    move_u = n_moves - 1 - last_rev
-    keep = (lines_u >= 0) & (lines_u < n_lines)
-    lines_u, move_u = lines_u[keep], move_u[keep]
-
-    fold = wopts.feed_policy == "xy"
-    # what each move line does to the travel a turn may be folded into (see below)
-    _NONE, _TRAVEL, _RESET, _WORK = 0, 1, 2, 3
-    work = has_seg & (with_pieces | turns)
-    with np.errstate(invalid="ignore"):
-        is_travel = ((moves["e"] <= 0) & (moves["kind"] <= 1)
-                     & ((moves["x1"] != moves["x0"]) | (moves["y1"] != moves["y0"])))
-        extruding = moves["e"] > 0
-    effect = np.full(n_moves, _NONE, dtype=np.int8)
-    effect[extruding] = _RESET
-    if turns:
-        effect[has_seg] = _RESET
-        if fold:
-            effect[is_travel] = _TRAVEL
-    effect[work] = _WORK
-    ev = effect[move_u] != _NONE
-    ev_line = lines_u[ev].tolist()
-    ev_move = move_u[ev].tolist()
-    ev_code = effect[move_u[ev]].tolist()
-
-    # per-move and per-chord columns as Python objects: the loop below reads them one by one
-    m_e = moves["e"].tolist()
-    m_kind = moves["kind"].tolist()
-    m_flags = moves["flags"].tolist()
-    m_layer = moves["layer"].tolist()
-    m_x0, m_y0 = moves["x0"].tolist(), moves["y0"].tolist()
-    m_x1, m_y1 = moves["x1"].tolist(), moves["y1"].tolist()
-    m_z0, m_z1 = moves["z0"].tolist(), moves["z1"].tolist()
-    s_x0, s_y0 = seg["x0"].tolist(), seg["y0"].tolist()
-    s_x1, s_y1 = seg["x1"].tolist(), seg["y1"].tolist()
-    s_e = seg["e"].tolist()
-    s_angle = np.asarray(seg_angle, dtype=float).tolist()
-    s_fold = np.asarray(seg_fold, dtype=bool).tolist()
-    s_turn = _planned_turns(np.asarray(seg_angle, dtype=float)).tolist()
-    heights_l = np.asarray(heights, dtype=float).tolist()
-    if len(seg):
-        layer_of_seg = moves["layer"][seg_move]
-        h_seg = np.where(layer_of_seg >= 0,
-                         np.asarray(heights, dtype=float)[np.maximum(layer_of_seg, 0)]
-                         if len(heights) else 0.2, 0.2)
-        s_scale = _e_scales(np.asarray(seg_width_laid, dtype=float),
-                            np.asarray(widths, dtype=float), h_seg, e_policy, nozzle,
-                            bead_area).tolist()
-    else:
-        s_scale = []
-
-    cur = 0.0  # rotary coordinate
-    letter = wopts.letter
-    d_ang = wopts.angle_decimals
-    cur_text = format_number(cur, d_ang)
-    last_travel_chunk: int | None = None  # chunk index of a travel we may fold C into
-    xd = wopts.xy_decimals
-    ed = 5
-    turned: dict[int, int] = {}
-    period = wopts.period or 360.0
-    lo, hi = wopts.angle_min, wopts.angle_max
-    chunks = out.chunks
-
-    unbounded = math.isinf(lo) and math.isinf(hi) and lo < 0 < hi
-
-    def coord_for(phi: float, *, unwind: bool = False) -> float:
-        prev = 0.0 if unwind else cur
-        if unbounded:
-            # nearest_equivalent without limits, inlined (the same operations, so the
-            # same bits): it runs once per rewritten move
-            k = round((prev - phi) / period)
-            best = phi + (k - 1) * period
-            bd = abs(best - prev)
-            cand = phi + k * period
-            if abs(cand - prev) < bd - 1e-12:
-                best, bd = cand, abs(cand - prev)
-            cand = phi + (k + 1) * period
-            if abs(cand - prev) < bd - 1e-12:
-                best = cand
-            return best
-        c = nearest_equivalent(phi, prev, period=period, lo=lo, hi=hi)
-        if c is None:  # cannot happen: candidates were filtered to reachable ones
-            raise InputError(f"orientation {phi:.3f}° is outside the rotary axis limits")
-        return c
-
-    angle_texts: dict[float, str] = {}
-
-    def angle_text(c: float) -> str:
-        # rotary coordinates repeat along straight runs and curves: format each once
-        t = angle_texts.get(c)
-        if t is None:
-            t = angle_texts[c] = format_number(c, d_ang)
-        return t
-
-    def turn_to(phi: float, c: float, c_text: str, eol: bytes, layer: int) -> None:
-        # a turn before the move: folded into the travel before it, else a move of its own
-        nonlocal cur, cur_text, last_travel_chunk
-        if c_text == cur_text:
-            return
-        word = letter + c_text
-        if fold and last_travel_chunk is not None:
-            if wopts.unwind:
-                c = coord_for(phi, unwind=True)
-                c_text = format_number(c, d_ang)
-                word = letter + c_text
-            chunks[last_travel_chunk] = edit_line(chunks[last_travel_chunk], add=[word])
-        else:
-            chunks.append(b"G1 " + word.encode() + eol)
-            out.inserted += 1
-        out.rotary_words += 1
-        turned[layer] = turned.get(layer, 0) + 1
-        cur = c
-        cur_text = c_text
-        last_travel_chunk = None
-
-    def words(raw: bytes, e_rel: bool, e_move: float):
-        # read only where a word is needed: most moves only gain a rotary word
-        ws = simple_move_words(raw)
-        if ws is not None:
-            f_text = e_text = None
-            for w in ws:
-                if f_text is None and w[:1] == b"F":
-                    f_text = w.decode("ascii")
-                elif e_text is None and w[:1] == b"E":
-                    e_text = w
-            has_e = e_text is not None
-            e_value = float(e_text[1:]) if has_e else None
-        else:
-            parsed = parse_line(raw)
-            fword = parsed.word("F")
-            f_text = fword.text.decode("ascii", "replace") if fword is not None else None
-            eword = parsed.word("E")
-            has_e = eword is not None
-            e_value = eword.value if has_e else None
-        e_end_abs = e_value if (has_e and not e_rel) else None
-        e_start_abs = (e_end_abs - e_move) if e_end_abs is not None else None
-        return f_text, has_e, e_end_abs, e_start_abs
-
-    # the lines before the first command are chunks of their own: the header goes among them
-    first_cmd = min(_first_command_line(g.lines), ev_line[0] if ev_line else n_lines)
-    for li in range(first_cmd):
-        chunks.append(data[starts[li]:starts[li + 1]])
-    pos = starts[first_cmd]  # data before pos is in the chunks
-    pending: int | None = None  # the last travel line since the last rewritten move
-
-    for li, mi, code in zip(ev_line, ev_move, ev_code, strict=True):
-        # A turn may be folded into the last travel before the move when no extrusion
-        # came in between; every rewritten move ends that chance.
-        if code == _TRAVEL:
-            pending = li
-            continue
-        if code == _RESET:
-            pending = None
-            continue
-        if pending is not None:
-            chunks.append(data[pos:starts[pending]])
-            chunks.append(data[starts[pending]:starts[pending + 1]])
-            last_travel_chunk = len(chunks) - 1
-            pos = starts[pending + 1]
-            pending = None
-        else:
-            last_travel_chunk = None
-        chunks.append(data[pos:starts[li]])
-        pos = starts[li + 1]
-        raw = data[starts[li]:pos]
-
-        # ---- this move is rewritten
-        layer = m_layer[mi]
-        a0, a1 = first_seg[mi]
-        eol = _eol_of(raw)
-        e_rel = bool(m_flags[mi] & 1)
-        e_move = m_e[mi]
-        simple = (a1 - a0 == 1 and a0 not in seg_pieces and m_kind[mi] <= 1)
-        h = heights_l[layer] if layer >= 0 else 0.2
-        if simple:
-            phi = s_angle[a0]
-            add: list[str] = []
-            if turns and math.isfinite(phi):
-                c = coord_for(phi)
-                c_text = angle_text(c)
-                if s_fold[a0] and abs(c - cur) <= s_turn[a0] + 1e-6:
-                    # the turn checked by the planner, made while moving
-                    if c_text != cur_text:
-                        add = [letter + c_text]
-                        out.rotary_words += 1
-                        turned[layer] = turned.get(layer, 0) + 1
-                        cur = c
-                        cur_text = c_text
-                else:
-                    turn_to(phi, c, c_text, eol, layer)
-            scale = s_scale[a0]
-            replace = {}
-            if scale != 1.0:
-                _, has_e, e_end_abs, e_start_abs = words(raw, e_rel, e_move)
-                if has_e:
-                    if e_rel:
-                        replace = {"E": "E" + format_number(e_move * scale, ed)}
-                    else:
-                        replace = {"E": "E" + format_number(e_start_abs + e_move * scale, ed)}
-            if replace or add:
-                chunks.append(edit_line(raw, replace=replace, add=add))
-                out.changed += 1
-                if replace and not e_rel:
-                    chunks.append(f"G92 E{format_number(e_end_abs, ed)}".encode() + eol)
-                    out.inserted += 1
-            else:
-                chunks.append(raw)
-            last_travel_chunk = None
-            continue
-        # ---- general case: chords and pieces, written as new G1 lines
-        f_text, _, e_end_abs, e_start_abs = words(raw, e_rel, e_move)
-        out.changed += 1
-        e_acc = 0.0
-        first = True
-        px, py = m_x0[mi], m_y0[mi]
-        comment = b" ; printability: was " + raw.rstrip(b"\r\n").strip()[:60]
-        lines_new: list[bytes] = []
-        # A move that also climbs (spiral vase) climbs along its new lines too, by path
-        # length, instead of stepping Z at the end.
-        z0, z1 = m_z0[mi], m_z1[mi]
-        ramp = None
-        if z1 != z0 and math.isfinite(z0) and math.isfinite(z1):
-            c_len = [math.hypot(s_x1[s] - s_x0[s], s_y1[s] - s_y0[s]) for s in range(a0, a1)]
-            ramp = _ZRamp(z0, z1, a0, c_len, list(itertools.accumulate(c_len, initial=0.0)),
-                          xd)
-        z_word = ramp.word if ramp is not None else _no_z_word
-        for s in range(a0, a1):
-            sx0, sy0, sx1, sy1 = s_x0[s], s_y0[s], s_x1[s], s_y1[s]
-            se = s_e[s]
-            in_pieces = s in seg_pieces
-            if in_pieces:
-                plist = [(p.t0, p.t1, p.angle) for p in seg_pieces[s]]
-            else:
-                plist = [(0.0, 1.0, s_angle[s])]
-            for t0, t1, phi in plist:
-                qx0, qy0 = sx0 + t0 * (sx1 - sx0), sy0 + t0 * (sy1 - sy0)
-                qx1, qy1 = sx0 + t1 * (sx1 - sx0), sy0 + t1 * (sy1 - sy0)
-                if math.hypot(qx0 - px, qy0 - py) > 1e-9:
-                    lines_new.append(b"G1 X" + format_number(qx0, xd).encode() + b" Y"
-                                     + format_number(qy0, xd).encode() + z_word(s, t0))
-                    px, py = qx0, qy0
-                c_word = b""
-                if turns and math.isfinite(phi):
-                    c = coord_for(phi)
-                    c_text = angle_text(c)
-                    if c_text != cur_text:
-                        c_word = (letter + c_text).encode()
-                        if not (s_fold[s] and not in_pieces
-                                and abs(c - cur) <= s_turn[s] + 1e-6):
-                            lines_new.append(b"G1 " + c_word)
-                            c_word = b""
-                        out.rotary_words += 1
-                        turned[layer] = turned.get(layer, 0) + 1
-                        cur = c
-                        cur_text = c_text
-                if in_pieces:
-                    scale = 1.0
-                    if math.isfinite(phi):
-                        rel = math.degrees(math.atan2(sy1 - sy0, sx1 - sx0))
-                        w_laid = nozzle.bead_width(rel, phi) if turns else float("nan")
-                        scale = _e_scale(w_laid, widths[s], h, e_policy, nozzle, bead_area)
-                else:
-                    scale = s_scale[s]
-                de = se * (t1 - t0) * scale
-                e_acc += de
-                if e_rel:
-                    e_word = b"E" + format_number(de, ed).encode()
-                else:
-                    e_word = b"E" + format_number(e_start_abs + e_acc, ed).encode()
-                ws = [b"G1", b"X" + format_number(qx1, xd).encode(),
-                      b"Y" + format_number(qy1, xd).encode() + z_word(s, t1), e_word]
-                if c_word:
-                    ws.append(c_word)
-                if first and f_text is not None:
-                    ws.append(f_text.encode())
-                first = False
-                lines_new.append(b" ".join(ws))
-                px, py = qx1, qy1
-        ex, ey = m_x1[mi], m_y1[mi]
-        if math.hypot(ex - px, ey - py) > 1e-9 or not lines_new:
-            ws = [b"G1", b"X" + format_number(ex, xd).encode(),
-                  b"Y" + format_number(ey, xd).encode() + z_word(a1 - 1, 1.0)]
-            if first and f_text is not None:
-                ws.append(f_text.encode())
-            lines_new.append(b" ".join(ws))
-        if z1 != z0 and math.isfinite(z1) and ramp is None:
-            lines_new.append(b"G1 Z" + format_number(z1, xd).encode())
-        if not e_rel and e_end_abs is not None and abs(e_acc - e_move) > 10 ** -ed:
-            lines_new.append(b"G92 E" + format_number(e_end_abs, ed).encode())
-        lines_new[0] = lines_new[0] + comment
-        chunks.extend(ln + eol for ln in lines_new)
-        out.inserted += len(lines_new) - 1
-        last_travel_chunk = None
-    chunks.append(data[pos:])
-    return out, turned
-
-
-def _planned_turns(seg_angle: np.ndarray) -> np.ndarray:
-    """Per chord, the turn into it the planner checked (from the chord before), degrees.
-
-    A turn folded into an extruding move must be that one: near an axis limit the
-    coordinate may have to go the long way round, which was never checked. -1 where
-    there is none (first chord, or an orientation that is not finite).
-    """
-    out = np.full(len(seg_angle), -1.0)
-    if len(seg_angle) > 1:
-        a, b = seg_angle[1:], seg_angle[:-1]
-        ok = np.isfinite(a) & np.isfinite(b)
-        out[1:][ok] = np.abs(a[ok] - b[ok])
-    return out
-
-
-def _e_scales(w_laid: np.ndarray, w_plan: np.ndarray, h: np.ndarray, e_policy: str,
-              nozzle: Nozzle, bead_area) -> np.ndarray:
-    """:func:`_e_scale` of every chord at once (the same operations, so the same bits)."""
-    scale = np.ones(len(w_laid))
-    if e_policy != "width" or nozzle.is_round:
-        return scale
-    with np.errstate(invalid="ignore", divide="ignore"):
-        a_plan = bead_area(w_plan, h)
-        a_laid = bead_area(w_laid, h)
-        ok = (np.isfinite(w_laid) & np.isfinite(w_plan)
-              & ~(np.abs(w_laid - w_plan) <= 0.01 * w_plan) & (a_plan > 0))
-    scale[ok] = a_laid[ok] / a_plan[ok]
-    return scale
-
-
-def _e_scale(w_laid: float, w_plan: float, h: float, e_policy: str, nozzle: Nozzle,
-             bead_area) -> float:
-    """Factor applied to the slicer's E for a bead laid ``w_laid`` wide instead of ``w_plan``."""
-    if e_policy != "width" or nozzle.is_round or not (math.isfinite(w_laid)
-                                                       and math.isfinite(w_plan)):
-        return 1.0
-    if abs(w_laid - w_plan) <= 0.01 * w_plan:
-        return 1.0
-    a_plan = float(bead_area(w_plan, h))
-    return float(bead_area(w_laid, h)) / a_plan if a_plan > 0 else 1.0
 
 
 # ----------------------------------------------------------------- files

@@ -21,7 +21,7 @@ from gcode.line import parse_line
 from gcode.rotary import bead_area
 from gcode.writer import _edit_tokens, edit_line, simple_move_words
 from printability.nozzle import parse_nozzle
-from printability.postprocess import _e_scale, _e_scales, _planned_turns
+from printability.rewrite import e_scale, e_scales, planned_turns
 
 SAMPLES = [
     "bambustudio_1.10_klipper_arcs.gcode",
@@ -128,8 +128,8 @@ _width = st.one_of(st.floats(0.0, 2.0), st.just(math.nan), st.just(math.inf),
 def test_vector_e_scale_is_the_scalar_one(rows, e_policy):
     nozzle = parse_nozzle("ellipse:major=0.8,minor=0.3")
     wl, wp, h = (np.array(c, dtype=float) for c in zip(*rows, strict=True))
-    got = _e_scales(wl, wp, h, e_policy, nozzle, bead_area)
-    want = [_e_scale(a, b, float(c), e_policy, nozzle, bead_area) for a, b, c in rows]
+    got = e_scales(wl, wp, h, e_policy, nozzle, bead_area)
+    want = [e_scale(a, b, float(c), e_policy, nozzle, bead_area) for a, b, c in rows]
     assert got.tolist() == want
 
 
@@ -138,4 +138,4 @@ def test_vector_planned_turn(angles):
     a = np.array(angles, dtype=float)
     want = [-1.0 if s == 0 or not (math.isfinite(a[s]) and math.isfinite(a[s - 1]))
             else abs(float(a[s] - a[s - 1])) for s in range(len(a))]
-    assert _planned_turns(a).tolist() == want
+    assert planned_turns(a).tolist() == want
