@@ -8,19 +8,13 @@ import hypothesis.strategies as st
 import numpy as np
 import pytest
 from _gcode_reader_compare import mismatches, tables_equal
+from gcode_samples import GCODE_SAMPLES
 from hypothesis import given, settings
 
 from gcode import _lexer, parse_gcode, parse_line, read_gcode
 from gcode._lexer import lex
 
-SAMPLES = [
-    "bambustudio_1.10_klipper_arcs.gcode",
-    "cura_5.9.1_marlin.gcode",
-    "orcaslicer_2.3.0b2_klipper_arcs.gcode",
-    "prusaslicer_2.7.4_marlin2_arcs.gcode",
-    "prusaslicer_2.7.4_spiral_vase.gcode",
-    "slic3rpe_1.33_arcwelder_benchy.gcode",
-]
+SAMPLES = GCODE_SAMPLES
 
 
 @pytest.fixture(scope="module", params=SAMPLES)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gcode_samples import GCODE_SAMPLES
 from pp_helpers import geos_targets, lines_not_kept
 
 from gcode import NON_PART_CATEGORIES, parse_gcode
@@ -27,14 +28,7 @@ from printability.postprocess import (
 
 ELLIPSE = "ellipse:major=0.8,minor=0.3"
 TOL = 1e-3
-SAMPLES = [
-    "prusaslicer_2.7.4_marlin2_arcs.gcode",
-    "prusaslicer_2.7.4_spiral_vase.gcode",
-    "orcaslicer_2.3.0b2_klipper_arcs.gcode",
-    "bambustudio_1.10_klipper_arcs.gcode",
-    "cura_5.9.1_marlin.gcode",
-    "slic3rpe_1.33_arcwelder_benchy.gcode",
-]
+SAMPLES = GCODE_SAMPLES
 
 
 def _header_removed(new: bytes) -> bytes:

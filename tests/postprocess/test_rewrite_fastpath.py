@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+from gcode_samples import GCODE_SAMPLES
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -23,14 +24,7 @@ from gcode.writer import _edit_tokens, edit_line, simple_move_words
 from printability.nozzle import parse_nozzle
 from printability.rewrite import e_scale, e_scales, planned_turns
 
-SAMPLES = [
-    "bambustudio_1.10_klipper_arcs.gcode",
-    "cura_5.9.1_marlin.gcode",
-    "orcaslicer_2.3.0b2_klipper_arcs.gcode",
-    "prusaslicer_2.7.4_marlin2_arcs.gcode",
-    "prusaslicer_2.7.4_spiral_vase.gcode",
-    "slic3rpe_1.33_arcwelder_benchy.gcode",
-]
+SAMPLES = GCODE_SAMPLES
 
 # the edits the rewrite makes: a rotary word, a new E, both (E is added where it is missing)
 EDITS = [
