@@ -44,6 +44,10 @@ __all__ = ["EPS", "boundary_grid", "chain_nearest", "contains_xy", "covers", "co
 EPS = 1e-9
 """Margin (mm) of the half-plane tests against rounding of the ring's vertices."""
 
+# The helpers called per footprint or per edge only read and write arrays they are given:
+# they are compiled without the runtime (``_nrt=False``), else every call increfs and
+# decrefs each array argument (atomic operations that cost more than a footprint's test).
+
 _cache: list[tuple[BaseGeometry, tuple]] = []
 
 
@@ -127,7 +131,7 @@ def _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny):  # pragma: no cover
     return count, items
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _clip(ax, ay, bx, by, cu, su, h, off, order):  # pragma: no cover
     """Fraction of [a, b] inside all half-planes ``cu·x + su·y ≤ h + off`` (Liang–Barsky).
 
@@ -188,7 +192,7 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
                               order, found)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _edges_state(cu, su, h, bx0, by0, bx1, by1, ex0, ey0, ex1, ey1, start, items, x0, y0, cell,
                  nx, ny, eps, order, found):  # pragma: no cover
     """One footprint of :func:`_decide`: 0 if ∂G enters it, -1 if ∂G grazes it, else 1.
@@ -214,15 +218,15 @@ def _edges_state(cu, su, h, bx0, by0, bx1, by1, ex0, ey0, ex1, ey1, start, items
                     continue
                 if _clip(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
                     continue
-                length = math.hypot(bx - ax, by - ay)
-                if _clip(ax, ay, bx, by, cu, su, h, -eps, order) * length > eps:
+                t = _clip(ax, ay, bx, by, cu, su, h, -eps, order)
+                if t > 0.0 and t * math.hypot(bx - ax, by - ay) > eps:
                     found[0] = e
                     return 0
                 state = -1
     return state
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # pragma: no cover
     """Whether a point at least ~``EPS`` away from ∂G lies in G (parity of a ray's crossings).
 
@@ -304,6 +308,14 @@ def _deep_in_sweep(ex0, ey0, ex1, ey1, sx, sy, a, b, cx, cy, rc, rs, c, s, sc): 
     set, hence in every polygon around it, far beyond ``EPS``. A sufficient test of
     refusal, needing no half-plane: a rectangle holds the ellipse of its semi-axes.
     """
+    m00, m01, m10, m11, qx, qy, tx, ty = _sweep_frame(sx, sy, a, b, cx, cy, rc, rs, c, s, sc)
+    return _deep_in_frame(ex0, ey0, ex1, ey1, m00, m01, m10, m11, qx, qy, tx, ty)
+
+
+@numba.njit(cache=True)
+def _sweep_frame(sx, sy, a, b, cx, cy, rc, rs, c, s, sc):  # pragma: no cover
+    """The frame of :func:`_deep_in_sweep`: its map ``M`` (row by row), the ellipse's centre
+    ``q`` and the segment's end ``t`` in it (one per footprint, shared by the edges tried)."""
     # M = diag(1/a, 1/b) R(-rotation) R(-phi) / scale
     m00 = (rc * c - rs * s) / (a * sc)
     m01 = (rc * s + rs * c) / (a * sc)
@@ -311,34 +323,72 @@ def _deep_in_sweep(ex0, ey0, ex1, ey1, sx, sy, a, b, cx, cy, rc, rs, c, s, sc): 
     m11 = (-rs * s + rc * c) / (b * sc)
     qx = (rc * cx + rs * cy) / a
     qy = (-rs * cx + rc * cy) / b
+    tx = m00 * sx + m01 * sy + qx
+    ty = m10 * sx + m11 * sy + qy
+    return m00, m01, m10, m11, qx, qy, tx, ty
+
+
+@numba.njit(cache=True)
+def _deep_in_frame(ex0, ey0, ex1, ey1, m00, m01, m10, m11, qx, qy, tx, ty):  # pragma: no cover
+    """:func:`_deep_in_sweep` given its :func:`_sweep_frame`."""
     ax = m00 * ex0 + m01 * ey0
     ay = m10 * ex0 + m11 * ey0
     bx = m00 * ex1 + m01 * ey1
     by = m10 * ex1 + m11 * ey1
-    tx = m00 * sx + m01 * sy + qx
-    ty = m10 * sx + m11 * sy + qy
     lim = 1.0 - _DEEP
     return _segments2(ax, ay, bx, by, qx, qy, tx, ty) < lim * lim
 
 
 _NO_POLYGONS = (np.zeros(1, np.int64), np.zeros(0), np.zeros(0), np.zeros(0),
-                np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0, 1, 1)
+                np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0, 1, 1,
+                np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
 
 
 def locator(target: BaseGeometry | BeadUnion) -> tuple:
-    """What :func:`first_fits` locates points with: a bead union's polygons and their
-    grid, or nothing (a shapely target: parity of ∂G's crossings)."""
+    """What :func:`first_fits` locates points with: a bead union's polygons, their grid
+    and their beads (axis ends and radius), or nothing (a shapely target: parity of ∂G's
+    crossings)."""
     if isinstance(target, BeadUnion):
-        return (target.off, target.ux, target.uy, target.h, *target.grid)
+        return (target.off, target.ux, target.uy, target.h, *target.grid, target.ax,
+                target.ay, target.bx, target.by, target.rho)
     return _NO_POLYGONS
 
 
-@numba.njit(cache=True)
+_AXIS = 1e-6
+"""Margin (mm) of :func:`_near_axis`: far above the rounding of a bead polygon's half-planes."""
+
+
+@numba.njit(cache=True, _nrt=False)
+def _near_axis(px, py, start, items, x0, y0, cell, nx, ny, ax, ay, bx, by, rho):  # pragma: no cover
+    """Whether the point is within ``rho - _AXIS`` of the axis of a bead listed in its cell.
+
+    A sufficient test of :func:`~printability.motion.beadunion.in_polygons`: a bead
+    polygon holds the points within ``rho`` of its axis (its half-planes are tangent to
+    that capsule), and its box, by which it is listed in the cells, holds them too; at
+    ``_AXIS`` inside, every half-plane holds them despite rounding. The points located
+    are mostly on some move's axis, where the half-planes are many (a polygon's 2k) and
+    this test is one distance.
+    """
+    c = _cell(py, y0, cell, ny) * nx + _cell(px, x0, cell, nx)
+    for q in range(start[c], start[c + 1]):
+        i = items[q]
+        r = rho[i] - _AXIS
+        if r > 0.0 and _point_segment2(px, py, ax[i], ay[i], bx[i], by[i]) < r * r:
+            return True
+    return False
+
+
+@numba.njit(cache=True, _nrt=False)
 def _locate(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, loff, lux, luy, lh,
-            lstart, litems, lx0, ly0, lcell, lnx, lny):  # pragma: no cover
+            lstart, litems, lx0, ly0, lcell, lnx, lny, lax, lay, lbx, lby,
+            lrho):  # pragma: no cover
     """Whether a point at least ~``EPS`` from ∂G lies in G: in one of the polygons of a
-    bead union when there are any, else by the parity of ∂G's crossings."""
+    bead union when there are any (near a bead's axis first), else by the parity of ∂G's
+    crossings."""
     if len(loff) > 1:
+        if _near_axis(px, py, lstart, litems, lx0, ly0, lcell, lnx, lny, lax, lay, lbx, lby,
+                      lrho):
+            return True
         return in_polygons(px, py, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx,
                            lny)
     return _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny)
@@ -347,7 +397,8 @@ def _locate(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, loff
 @numba.njit(cache=True)
 def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gseg, c0, s0, c1, s1,
                k, gpos, gend, cb, sb, det, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx,
-               ny, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx, lny, eps, order,
+               ny, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx, lny, lax, lay, lbx,
+               lby, lrho, eps, order,
                out_idx, out_state):  # pragma: no cover
     """Per group of candidates, the first whose swept footprint lies inside G.
 
@@ -401,6 +452,7 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
         if pcx[p] != 0.0 or pcy[p] != 0.0 or pa[p] < 0.0 or pb[p] < 0.0:
             centred = False
     mru = np.full(4, -1, np.int64)
+    mru_len = np.zeros(4)  # their lengths
     found = np.zeros(1, np.int64)
     where = -1  # start point of the segment: -1 not located yet, 0 outside, 1 inside
     last = -1
@@ -422,19 +474,20 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                 for p in range(len(kind)):
                     if pa[p] <= 0.0 or pb[p] <= 0.0 or not sc * min(pa[p], pb[p]) >= 1e-3:
                         continue
+                    sx = p1[m, 0] - p0[m, 0]
+                    sy = p1[m, 1] - p0[m, 1]
+                    m00, m01, m10, m11, qx, qy, tx, ty = _sweep_frame(
+                        sx, sy, pa[p], pb[p], pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q], sc)
                     for r in range(len(mru)):
                         e = mru[r]
                         if e < 0:
                             break
-                        if math.hypot(ex1[e] - ex0[e], ey1[e] - ey0[e]) < 1e-6:
+                        if mru_len[r] < 1e-6:
                             continue
-                        if _deep_in_sweep(ex0[e] - p0[m, 0], ey0[e] - p0[m, 1],
-                                          ex1[e] - p0[m, 0], ey1[e] - p0[m, 1],
-                                          p1[m, 0] - p0[m, 0], p1[m, 1] - p0[m, 1], pa[p], pb[p],
-                                          pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q], sc):
-                            for rr in range(r, 0, -1):
-                                mru[rr] = mru[rr - 1]
-                            mru[0] = e
+                        if _deep_in_frame(ex0[e] - p0[m, 0], ey0[e] - p0[m, 1],
+                                          ex1[e] - p0[m, 0], ey1[e] - p0[m, 1], m00, m01, m10,
+                                          m11, qx, qy, tx, ty):
+                            _to_front(mru, mru_len, r, e, mru_len[r])
                             state = 0
                             break
                     if state == 0:
@@ -457,11 +510,9 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                     by = ey1[e]
                     # only the refusal test: the shortcut never accepts, so whether
                     # the edge meets the footprint grown by eps is left to the scan
-                    if _clip(ax, ay, bx, by, cu, su, h, -eps, order) \
-                            * math.hypot(bx - ax, by - ay) > eps:
-                        for rr in range(r, 0, -1):
-                            mru[rr] = mru[rr - 1]
-                        mru[0] = e
+                    t = _clip(ax, ay, bx, by, cu, su, h, -eps, order)
+                    if t > 0.0 and t * mru_len[r] > eps:
+                        _to_front(mru, mru_len, r, e, mru_len[r])
                         refused = True
                         break
                 if refused:
@@ -488,21 +539,22 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                                   my1 / det + eps, ex0, ey0, ex1, ey1, start, items, x0, y0,
                                   cell, nx, ny, eps, order, found)
                 if st == 0:
-                    for rr in range(len(mru) - 1, 0, -1):
-                        mru[rr] = mru[rr - 1]
-                    mru[0] = found[0]
+                    e = found[0]
+                    _to_front(mru, mru_len, len(mru) - 1, e,
+                              math.hypot(ex1[e] - ex0[e], ey1[e] - ey0[e]))
                 if st == 1:
                     if centred and not (scaled and scale[m] < 0.0):
                         if where < 0:
                             where = 1 if _locate(p0[m, 0], p0[m, 1], ex0, ey0, ex1, ey1,
                                                  start, items, x0, y0, cell, nx, ny, loff, lux,
                                                  luy, lh, lstart, litems, lx0, ly0, lcell, lnx,
-                                                 lny) else 0
+                                                 lny, lax, lay, lbx, lby, lrho) else 0
                         inside = where == 1
                     else:
                         inside = _locate(nx0 / det, ny0 / det, ex0, ey0, ex1, ey1, start,
                                          items, x0, y0, cell, nx, ny, loff, lux, luy, lh, lstart,
-                                         litems, lx0, ly0, lcell, lnx, lny)
+                                         litems, lx0, ly0, lcell, lnx, lny, lax, lay, lbx,
+                                         lby, lrho)
                     if not inside:
                         st = 0
                 if st == 0:
@@ -514,6 +566,17 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                 out_idx[g] = q
                 out_state[g] = state
                 break
+
+
+@numba.njit(cache=True, _nrt=False)
+def _to_front(mru, mru_len, r, e, length):  # pragma: no cover
+    """Move edge ``e`` (of length ``length``) to the front of the most recently used edges,
+    from slot ``r`` (or the last one: the edge drops out)."""
+    for rr in range(r, 0, -1):
+        mru[rr] = mru[rr - 1]
+        mru_len[rr] = mru_len[rr - 1]
+    mru[0] = e
+    mru_len[0] = length
 
 
 @functools.lru_cache(maxsize=8)
@@ -588,7 +651,7 @@ def covers(target: BaseGeometry | BeadUnion, polygons: np.ndarray) -> np.ndarray
     return shapely.covers(target, polygons)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _directions(cn, sn, cb, sb, p0x, p0y, p1x, p1y, cu, su, w):  # pragma: no cover
     """Directions ``cu``, ``su`` of a move's half-planes and the move's extent ``w`` along them.
 
@@ -602,7 +665,7 @@ def _directions(cn, sn, cb, sb, p0x, p0y, p1x, p1y, cu, su, w):  # pragma: no co
         w[j] = max(u * p0x + v * p0y, u * p1x + v * p1y)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _offsets(kind, a, b, cx, cy, rc, rs, c0, s0, c1, s1, k, turning, scale, scaled, cu, su, w,
              h):  # pragma: no cover
     """Offsets ``h`` of the half-planes of an ellipse (kind 0) or rectangle (kind 1) swept.
