@@ -39,7 +39,8 @@ from shapely.geometry.base import BaseGeometry
 from printability.motion.beadunion import BeadUnion, in_polygons, union_contains_xy, union_covers
 
 __all__ = ["EPS", "boundary_grid", "chain_nearest", "contains_xy", "covers", "covers_rings",
-           "first_fits", "locator", "merge_pieces", "smooth_chain", "swept_kernel"]
+           "first_fits", "locator", "merge_pieces", "smooth_chain", "split_intervals",
+           "swept_kernel"]
 
 EPS = 1e-9
 """Margin (mm) of the half-plane tests against rounding of the ring's vertices."""
@@ -782,6 +783,64 @@ def smooth_chain(angle, c1, c2, searched, reach, per, previous):  # pragma: no c
         prop[i] = best
         prev = best
     return prop
+
+
+@numba.njit(cache=True)
+def split_intervals(length, step):  # pragma: no cover
+    """The candidate intervals of :func:`printability.motion.orientation._split_many`.
+
+    A move longer than ``2·step`` is trimmed by d = step/length, 2d, 4d… (while d < 1/2)
+    at the start (``[d, 1]``), the end (``[0, 1 - d]``) or both (``[d, 1 - d]``), in that
+    order per d; its intervals are listed by decreasing span, then in that order (the
+    order a stable sort by span over the generated intervals gives). Returns per interval
+    its move, start and end, then the moves that have intervals (ascending) and where
+    each one's intervals start (CSR, one more entry than moves).
+    """
+    n = len(length)
+    levels = np.zeros(n, np.int64)
+    total = 0
+    for i in range(n):
+        if length[i] > 2 * step:
+            d = step / length[i]
+            while d < 0.5:
+                levels[i] += 1
+                d = d * 2.0
+            total += 3 * levels[i]
+    iv_mv = np.empty(total, np.int64)
+    iv_t0 = np.empty(total)
+    iv_t1 = np.empty(total)
+    span = np.empty(total)
+    moves = np.empty(n, np.int64)
+    ivpos = np.zeros(n + 1, np.int64)
+    k = 0
+    nm = 0
+    for i in range(n):
+        if levels[i] == 0:
+            continue
+        lo = k
+        d = step / length[i]
+        for _ in range(levels[i]):
+            for kind in range(3):
+                t0 = 0.0 if kind == 1 else d
+                t1 = 1.0 if kind == 0 else 1.0 - d
+                s = t1 - t0
+                # insertion, after every interval at least as long (stable)
+                j = k
+                while j > lo and span[j - 1] < s:
+                    iv_t0[j] = iv_t0[j - 1]
+                    iv_t1[j] = iv_t1[j - 1]
+                    span[j] = span[j - 1]
+                    j -= 1
+                iv_t0[j] = t0
+                iv_t1[j] = t1
+                span[j] = s
+                iv_mv[k] = i
+                k += 1
+            d = d * 2.0
+        moves[nm] = i
+        nm += 1
+        ivpos[nm] = k
+    return iv_mv, iv_t0, iv_t1, moves[:nm], ivpos[:nm + 1]
 
 
 @numba.njit(cache=True)

@@ -47,6 +47,7 @@ from printability.motion.fastfit import (
     locator,
     merge_pieces,
     smooth_chain,
+    split_intervals,
     swept_kernel,
 )
 from printability.nozzle import Nozzle
@@ -885,49 +886,28 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     ncol = top.shape[1]
     # candidate intervals per move: trimmed by d = step/length, 2d, 4d… (d < 1/2) at the
     # start, the end or both; each at the ncol cheapest orientations
-    mv_l, t0_l, t1_l, rank_l = [], [], [], []
-    live = np.flatnonzero(length > 2 * step)
-    d = step / length[live]
-    level = 0
-    while live.size:
-        more = d < 0.5
-        live, d = live[more], d[more]
-        for kind, (t0, t1) in enumerate(((d, np.ones_like(d)), (np.zeros_like(d), 1.0 - d),
-                                         (d, 1.0 - d))):
-            mv_l.append(live)
-            t0_l.append(t0)
-            t1_l.append(t1)
-            rank_l.append(np.full(live.size, level * 3 + kind))
-        d = d * 2.0
-        level += 1
-    mv = np.concatenate(mv_l) if mv_l else np.zeros(0, dtype=np.int64)
-    if mv.size:
-        t0a = np.concatenate(t0_l)
-        t1a = np.concatenate(t1_l)
-        span = t1a - t0a
-        rank = np.concatenate(rank_l)
+    iv_mv, iv_t0, iv_t1, moves, ivpos = split_intervals(length, float(step))
+    if iv_mv.size:
         # the longest interval that fits, the first generated among equals (argmax's
-        # choice): candidates by decreasing span, then generation order, and the first
-        # that fits wins, so the rest are never tried
-        cand_iv = np.repeat(np.arange(mv.size), ncol)
-        cand_col = np.tile(np.arange(ncol), mv.size)
-        srt = np.lexsort((rank[cand_iv] * ncol + cand_col, -span[cand_iv], mv[cand_iv]))
-        cand_iv, cand_col = cand_iv[srt], cand_col[srt]
-        phis = top[mv[cand_iv], cand_col]
-        q0 = a[mv] + t0a[:, None] * (b - a)[mv]
-        q1 = a[mv] + t1a[:, None] * (b - a)[mv]
-        moves, gpos, cnt = np.unique(mv[cand_iv], return_index=True, return_counts=True)
-        sc_iv = None if scale is None else scale[mv]
+        # choice): per move, intervals by decreasing span, then generation order, each at
+        # its ncol orientations; the first that fits wins, so the rest are never tried
+        niv = iv_mv.size
+        cand_iv = np.repeat(np.arange(niv), ncol)
+        phis = top[iv_mv].reshape(-1)
+        q0 = a[iv_mv] + iv_t0[:, None] * (b - a)[iv_mv]
+        q1 = a[iv_mv] + iv_t1[:, None] * (b - a)[iv_mv]
+        gpos = ivpos[:-1] * ncol
+        gend = ivpos[1:] * ncol
+        sc_iv = None if scale is None else scale[iv_mv]
         if fast and _fused(pieces):
-            first = _first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, gpos,
-                               gpos + cnt)
+            first = _first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, gpos, gend)
         else:
             first = _first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
-                                         gpos + cnt, fast=fast)
+                                         gend, fast=fast)
         hit = first >= 0
         j = first[hit]
-        keep_t0[moves[hit]] = t0a[cand_iv[j]]
-        keep_t1[moves[hit]] = t1a[cand_iv[j]]
+        keep_t0[moves[hit]] = iv_t0[cand_iv[j]]
+        keep_t1[moves[hit]] = iv_t1[cand_iv[j]]
         keep_phi[moves[hit]] = phis[j]
     kept = keep_t1 > keep_t0
     # the pieces found, as arrays (move, t0, t1, angle) in the order found, until merged
