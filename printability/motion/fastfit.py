@@ -61,9 +61,10 @@ def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
     Returns
     -------
     tuple
-        ``(ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny)``: edge
+        ``(ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, packed)``: edge
         ends, for cell ``c = iy·nx + ix`` the edges ``items[start[c]:start[c+1]]``,
-        the grid origin, cell size and shape.
+        the grid origin, cell size and shape, and per entry of ``items`` its edge's
+        ends and box (:func:`_pack_edges`).
     """
     for g, grid in _cache:
         if g is target:
@@ -89,7 +90,8 @@ def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
     nx = int(w // cell) + 1
     ny = int(hgt // cell) + 1
     start, items = _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny)
-    grid = (ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny)
+    grid = (ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny,
+            _pack_edges(ex0, ey0, ex1, ey1, items))
     _cache.insert(0, (target, grid))
     del _cache[4:]
     return grid
@@ -132,6 +134,28 @@ def _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny):  # pragma: no cover
     return count, items
 
 
+@numba.njit(cache=True)
+def _pack_edges(ex0, ey0, ex1, ey1, items):  # pragma: no cover
+    """Per entry of the grid's ``items``: its edge's x0, y0, x1, y1 and box (min x, max x,
+    min y, max y), one row of 8 (one cache line) read in turn as a cell is scanned."""
+    out = np.empty((len(items), 8))
+    for q in range(len(items)):
+        e = items[q]
+        ax = ex0[e]
+        ay = ey0[e]
+        bx = ex1[e]
+        by = ey1[e]
+        out[q, 0] = ax
+        out[q, 1] = ay
+        out[q, 2] = bx
+        out[q, 3] = by
+        out[q, 4] = min(ax, bx)
+        out[q, 5] = max(ax, bx)
+        out[q, 6] = min(ay, by)
+        out[q, 7] = max(ay, by)
+    return out
+
+
 @numba.njit(cache=True, _nrt=False)
 def _clip(ax, ay, bx, by, cu, su, h, off, order):  # pragma: no cover
     """Fraction of [a, b] inside all half-planes ``cu·x + su·y ≤ h + off`` (Liang–Barsky).
@@ -165,7 +189,7 @@ def _clip(ax, ay, bx, by, cu, su, h, off, order):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny,
+def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, packed,
             todo, eps, order, out):  # pragma: no cover
     """Per ring of ``todo``: 1 inside, 0 not inside, -1 undecided (∂G within ``eps``).
 
@@ -189,16 +213,16 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
             by0 = min(by0, y)
             by1 = max(by1, y)
         out[i] = _edges_state(cu[i], su[i], h[i], bx0 - eps, by0 - eps, bx1 + eps, by1 + eps,
-                              ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, eps,
-                              order, found)
+                              start, items, x0, y0, cell, nx, ny, packed, eps, order, found)
 
 
 @numba.njit(cache=True, _nrt=False)
-def _edges_state(cu, su, h, bx0, by0, bx1, by1, ex0, ey0, ex1, ey1, start, items, x0, y0, cell,
-                 nx, ny, eps, order, found):  # pragma: no cover
+def _edges_state(cu, su, h, bx0, by0, bx1, by1, start, items, x0, y0, cell, nx, ny, packed, eps,
+                 order, found):  # pragma: no cover
     """One footprint of :func:`_decide`: 0 if ∂G enters it, -1 if ∂G grazes it, else 1.
 
-    ``bx0``… is the ring's bounding box already grown by ``eps``.
+    ``bx0``… is the ring's bounding box already grown by ``eps``; the edges are read
+    from the grid's ``packed`` rows.
     """
     ix0 = _cell(bx0, x0, cell, nx)
     ix1 = _cell(bx1, x0, cell, nx)
@@ -209,19 +233,18 @@ def _edges_state(cu, su, h, bx0, by0, bx1, by1, ex0, ey0, ex1, ey1, start, items
         for ix in range(ix0, ix1 + 1):
             c = iy * nx + ix
             for q in range(start[c], start[c + 1]):
-                e = items[q]
-                ax = ex0[e]
-                ay = ey0[e]
-                bx = ex1[e]
-                by = ey1[e]
-                if max(ax, bx) < bx0 or min(ax, bx) > bx1 or max(ay, by) < by0 \
-                        or min(ay, by) > by1:
+                if packed[q, 5] < bx0 or packed[q, 4] > bx1 or packed[q, 7] < by0 \
+                        or packed[q, 6] > by1:
                     continue
+                ax = packed[q, 0]
+                ay = packed[q, 1]
+                bx = packed[q, 2]
+                by = packed[q, 3]
                 if _clip(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
                     continue
                 t = _clip(ax, ay, bx, by, cu, su, h, -eps, order)
                 if t > 0.0 and t * math.hypot(bx - ax, by - ay) > eps:
-                    found[0] = e
+                    found[0] = items[q]
                     return 0
                 state = -1
     return state
@@ -398,9 +421,8 @@ def _locate(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, loff
 @numba.njit(cache=True)
 def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gseg, c0, s0, c1, s1,
                k, gpos, gend, cb, sb, det, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx,
-               ny, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx, lny, lax, lay, lbx,
-               lby, lrho, eps, order,
-               out_idx, out_state):  # pragma: no cover
+               ny, packed, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx, lny, lax,
+               lay, lbx, lby, lrho, eps, order, out_idx, out_state):  # pragma: no cover
     """Per group of candidates, the first whose swept footprint lies inside G.
 
     Candidate ``q`` sweeps the pieces (``kind`` 0 ellipse, 1 rectangle, with
@@ -537,8 +559,8 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                     my0 = min(my0, y)
                     my1 = max(my1, y)
                 st = _edges_state(cu, su, h, mx0 / det - eps, my0 / det - eps, mx1 / det + eps,
-                                  my1 / det + eps, ex0, ey0, ex1, ey1, start, items, x0, y0,
-                                  cell, nx, ny, eps, order, found)
+                                  my1 / det + eps, start, items, x0, y0, cell, nx, ny, packed,
+                                  eps, order, found)
                 if st == 0:
                     e = found[0]
                     _to_front(mru, mru_len, len(mru) - 1, e,
@@ -865,8 +887,20 @@ def merge_pieces(move, t0, t1, angle):  # pragma: no cover
     and orientation.
     """
     n = len(move)
-    order = np.argsort(t0, kind="mergesort")  # stable: then by move, stable again
-    order = order[np.argsort(move[order], kind="mergesort")]
+    order = np.argsort(move, kind="mergesort")  # stable
+    # then by start within each move (stable insertion: a move has few pieces)
+    lo = 0
+    for r in range(1, n + 1):
+        if r < n and move[order[r]] == move[order[lo]]:
+            continue
+        for x in range(lo + 1, r):
+            i = order[x]
+            j = x
+            while j > lo and t0[order[j - 1]] > t0[i]:
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = i
+        lo = r
     om = np.empty(n, np.int64)
     oa = np.empty(n)
     ob = np.empty(n)

@@ -713,9 +713,8 @@ def plan_orientations(
                                 beta, wtab, per, nozzle, options,
                                 None if sc is None else sc[rest],
                                 ordered=(near[rest], order[rest]))
-            for i, plist in zip(bad[rest].tolist(), split, strict=True):
-                result_pieces[int(i)] = plist
-                angle[i] = np.nan
+            result_pieces.update(zip(bad[rest].tolist(), split, strict=True))
+            angle[bad[rest]] = np.nan
     if turns and n > 1:
         angle = _smooth(angle, bad, c1, c2, per, previous, prepared_target, pieces, p0, p1,
                         scale, machine)
@@ -960,8 +959,14 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     pm, pa, pb, pp = merge_pieces(*(np.concatenate([f[c] for f in found_l]).astype(t)
                                     for c, t in enumerate((np.int64, float, float, float))))
     out: list[list[OrientedPiece]] = [[] for _ in range(n)]
-    for i, t0, t1, phi in zip(pm.tolist(), pa.tolist(), pb.tolist(), pp.tolist(), strict=True):
-        out[i].append(OrientedPiece(t0, t1, phi))
+    made = list(map(OrientedPiece, pa.tolist(), pb.tolist(), pp.tolist()))
+    # sorted by move: each move's pieces are one run
+    ends = [*(np.flatnonzero(np.diff(pm)) + 1).tolist(), len(made)]
+    lo = 0
+    for hi in ends:
+        if hi > lo:
+            out[int(pm[lo])] = made[lo:hi]
+        lo = hi
     return out
 
 
