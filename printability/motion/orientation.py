@@ -871,7 +871,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     """
     n = len(a)
     step = options.split_length or max(0.05, nozzle.radius / 4)
-    length = np.hypot(*(b - a).T)
+    ba = b - a
+    length = np.hypot(*ba.T)
     if ordered is None or np.isnan(prev).any():
         prev = np.where(np.isnan(prev), 0.0, prev)
         near, order_all = _cost_order(direction, width, prev, cands, beta, wtab, per, options)
@@ -893,13 +894,17 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         niv = iv_mv.size
         cand_iv = np.repeat(np.arange(niv), ncol)
         phis = top[iv_mv].reshape(-1)
-        q0 = a[iv_mv] + iv_t0[:, None] * (b - a)[iv_mv]
-        q1 = a[iv_mv] + iv_t1[:, None] * (b - a)[iv_mv]
+        q0 = a[iv_mv] + iv_t0[:, None] * ba[iv_mv]
+        q1 = a[iv_mv] + iv_t1[:, None] * ba[iv_mv]
         gpos = ivpos[:-1] * ncol
         gend = ivpos[1:] * ncol
         sc_iv = None if scale is None else scale[iv_mv]
         if fast and _fused(pieces):
-            first = _first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, gpos, gend)
+            # cos/sin of each move's two orientations, once, gathered per candidate
+            rad = np.deg2rad(top)
+            trig = (np.cos(rad)[iv_mv].reshape(-1), np.sin(rad)[iv_mv].reshape(-1))
+            first = _first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, gpos, gend,
+                               trig=trig)
         else:
             first = _first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
                                          gend, fast=fast)
@@ -928,8 +933,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     ta = ra_all[part]
     tb = rb_all[part]
     while idx.size:
-        q0 = a[idx] + ta[:, None] * (b - a)[idx]
-        q1 = a[idx] + tb[:, None] * (b - a)[idx]
+        q0 = a[idx] + ta[:, None] * ba[idx]
+        q1 = a[idx] + tb[:, None] * ba[idx]
         if fast and _fused(pieces) and ncand:
             # no limit: a part tries all its move's candidates, in order
             first = _first_fit(target, pieces, q0, q1, None if scale is None else scale[idx],
