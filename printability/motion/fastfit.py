@@ -40,7 +40,7 @@ from printability.motion.beadunion import BeadUnion, in_polygons, union_contains
 
 __all__ = ["EPS", "boundary_grid", "chain_nearest", "contains_xy", "covers", "covers_rings",
            "first_fits", "locator", "merge_pieces", "smooth_chain", "split_intervals",
-           "swept_kernel"]
+           "swept_kernel", "width_picks"]
 
 EPS = 1e-9
 """Margin (mm) of the half-plane tests against rounding of the ring's vertices."""
@@ -805,6 +805,41 @@ def smooth_chain(angle, c1, c2, searched, reach, per, previous):  # pragma: no c
         prop[i] = best
         prev = best
     return prop
+
+
+@numba.njit(cache=True)
+def width_picks(w, wtab, beta, dist):  # pragma: no cover
+    """Per planned width, the picks of
+    :func:`printability.motion.orientation.preferred_orientations`, compiled.
+
+    ``b1``: the relative orientation ``beta`` whose width ``wtab`` is nearest ``w`` (the
+    first among equals, as ``np.argmin``); ``b2``: the nearest one more than 2° away from
+    it modulo 180° (``dist``, row per orientation) when at most 1e-4 mm worse, else ``b1``.
+    The same elementwise operations as the numpy rows (``|wtab - w|``, first minimum), so
+    the same picks; no (widths × orientations) array is made.
+    """
+    n = len(w)
+    m = len(wtab)
+    b1 = np.empty(n)
+    b2 = np.empty(n)
+    for i in range(n):
+        j1 = 0
+        e1 = abs(wtab[0] - w[i])
+        for j in range(1, m):
+            e = abs(wtab[j] - w[i])
+            if e < e1:
+                e1 = e
+                j1 = j
+        j2 = 0
+        e2 = abs(wtab[0] - w[i]) if dist[j1, 0] > 2.0 else np.inf
+        for j in range(1, m):
+            e = abs(wtab[j] - w[i]) if dist[j1, j] > 2.0 else np.inf
+            if e < e2:
+                e2 = e
+                j2 = j
+        b1[i] = beta[j1]
+        b2[i] = beta[j2] if e2 <= e1 + 1e-4 else beta[j1]
+    return b1, b2
 
 
 @numba.njit(cache=True)

@@ -49,6 +49,7 @@ from printability.motion.fastfit import (
     smooth_chain,
     split_intervals,
     swept_kernel,
+    width_picks,
 )
 from printability.nozzle import Nozzle
 
@@ -569,18 +570,8 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
     w_all = np.where(np.isfinite(widths), widths, wtab.min())
     # a slicer plans a handful of distinct widths: each row depends on its width only
     w, inverse = np.unique(w_all, return_inverse=True)
-    b1 = np.empty(len(w))
-    b2 = np.empty(len(w))
-    for lo in range(0, len(w), 8192):
-        err = np.abs(wtab[None, :] - w[lo:lo + 8192, None])
-        j1 = np.argmin(err, axis=1)
-        e1 = err[np.arange(len(j1)), j1]
-        dist = _half_turn_distance(beta)[j1]
-        err2 = np.where(dist > 2.0, err, np.inf)
-        j2 = np.argmin(err2, axis=1)
-        e2 = err2[np.arange(len(j2)), j2]
-        b1[lo:lo + 8192] = beta[j1]
-        b2[lo:lo + 8192] = np.where(e2 <= e1 + 1e-4, beta[j2], beta[j1])
+    b1, b2 = width_picks(np.ascontiguousarray(w), np.ascontiguousarray(wtab),
+                         np.ascontiguousarray(beta), _half_turn_distance(beta))
     b1 = b1[inverse.reshape(-1)]
     b2 = b2[inverse.reshape(-1)]
     # candidates: direction + b (+180 is the same width), unwrap sequentially
