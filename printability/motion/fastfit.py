@@ -36,6 +36,9 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from printability.motion._kernels import cell_of as _cell
+from printability.motion._kernels import point_segment2 as _point_segment2
+from printability.motion._kernels import segments2 as _segments2
 from printability.motion.beadunion import BeadUnion, in_polygons, union_contains_xy, union_covers
 
 __all__ = ["EPS", "boundary_grid", "chain_nearest", "contains_xy", "covers", "covers_rings",
@@ -95,17 +98,6 @@ def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
     _cache.insert(0, (target, grid))
     del _cache[4:]
     return grid
-
-
-@numba.njit(cache=True)
-def _cell(v, v0, cell, n):  # pragma: no cover
-    """Grid column (or row) of the coordinate ``v``, clamped to the grid.
-
-    Every binning and every look-up goes through this one monotone function, which
-    is all the scans rely on (an edge is listed in every cell its box reaches);
-    ``math.floor`` of a quotient, as a float ``//`` is compiled to a call to fmod.
-    """
-    return min(max(math.floor((v - v0) / cell), 0), n - 1)
 
 
 @numba.njit(cache=True)
@@ -287,33 +279,6 @@ def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # 
             if (xc > px) if right else (xc < px):
                 inside = not inside
     return inside
-
-
-@numba.njit(cache=True)
-def _point_segment2(px, py, ax, ay, bx, by):  # pragma: no cover
-    """Squared distance from a point to the segment [a, b]."""
-    dx = bx - ax
-    dy = by - ay
-    ll = dx * dx + dy * dy
-    t = 0.0
-    if ll > 0.0:
-        t = min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / ll))
-    qx = ax + t * dx - px
-    qy = ay + t * dy - py
-    return qx * qx + qy * qy
-
-
-@numba.njit(cache=True)
-def _segments2(ax, ay, bx, by, cx, cy, dx, dy):  # pragma: no cover
-    """Squared distance between the segments [a, b] and [c, d] (0 when they cross)."""
-    o1 = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-    o2 = (bx - ax) * (dy - ay) - (by - ay) * (dx - ax)
-    o3 = (dx - cx) * (ay - cy) - (dy - cy) * (ax - cx)
-    o4 = (dx - cx) * (by - cy) - (dy - cy) * (bx - cx)
-    if o1 * o2 < 0.0 and o3 * o4 < 0.0:
-        return 0.0
-    return min(_point_segment2(ax, ay, cx, cy, dx, dy), _point_segment2(bx, by, cx, cy, dx, dy),
-               _point_segment2(cx, cy, ax, ay, bx, by), _point_segment2(dx, dy, ax, ay, bx, by))
 
 
 _DEEP = 1e-3

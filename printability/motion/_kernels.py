@@ -1,0 +1,51 @@
+"""Small compiled predicates shared by :mod:`printability.motion.fastfit` and
+:mod:`printability.motion.beadunion` (one copy, so the two grids and distance tests agree).
+
+Coordinates in mm; "squared" distances in mm².
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+
+__all__ = ["cell_of", "point_segment2", "segments2"]
+
+
+@numba.njit(cache=True, nogil=True)
+def cell_of(v, v0, cell, n):  # pragma: no cover
+    """Grid column (or row) of the coordinate ``v``, clamped to the grid.
+
+    Every binning and every look-up goes through this one monotone function, which
+    is all the scans rely on (an item is listed in every cell its box reaches);
+    ``math.floor`` of a quotient, as a float ``//`` is compiled to a call to fmod.
+    """
+    return min(max(math.floor((v - v0) / cell), 0), n - 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def point_segment2(px, py, ax, ay, bx, by):  # pragma: no cover
+    """Squared distance from a point to the segment [a, b]."""
+    dx = bx - ax
+    dy = by - ay
+    ll = dx * dx + dy * dy
+    t = 0.0
+    if ll > 0.0:
+        t = min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / ll))
+    qx = ax + t * dx - px
+    qy = ay + t * dy - py
+    return qx * qx + qy * qy
+
+
+@numba.njit(cache=True, nogil=True)
+def segments2(ax, ay, bx, by, cx, cy, dx, dy):  # pragma: no cover
+    """Squared distance between the segments [a, b] and [c, d] (0 when they cross)."""
+    o1 = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    o2 = (bx - ax) * (dy - ay) - (by - ay) * (dx - ax)
+    o3 = (dx - cx) * (ay - cy) - (dy - cy) * (ax - cx)
+    o4 = (dx - cx) * (by - cy) - (dy - cy) * (bx - cx)
+    if o1 * o2 < 0.0 and o3 * o4 < 0.0:
+        return 0.0
+    return min(point_segment2(ax, ay, cx, cy, dx, dy), point_segment2(bx, by, cx, cy, dx, dy),
+               point_segment2(cx, cy, ax, ay, bx, by), point_segment2(dx, dy, ax, ay, bx, by))
