@@ -204,12 +204,17 @@ def union_covers(u: BeadUnion, polygons: np.ndarray) -> np.ndarray:
     """``shapely.covers(G', polygon)`` for each polygon, with G' built only where it is.
 
     A polygon lies in G' exactly when it lies in the union of the bead polygons
-    meeting its bounding box, so each test unions a handful of convex polygons.
+    meeting its bounding box, so each test unions a handful of convex polygons;
+    from :data:`_MANY` polygons on, G' is built whole once (and kept for the next
+    calls on the same union).
     """
     polys = np.asarray(polygons, dtype=object).reshape(-1)
     out = np.zeros(len(polys), dtype=bool)
     if len(u.ax) == 0:
         return out
+    if len(polys) >= _MANY:
+        # many at once (the reference path of the tests): G' whole, built once per union
+        return shapely.covers(_whole(u), polys)
     bounds = shapely.bounds(polys)
     for i, (poly, b) in enumerate(zip(polys, bounds, strict=True)):
         near = np.flatnonzero((u.box[:, 0] <= b[2]) & (u.box[:, 2] >= b[0])
@@ -217,6 +222,22 @@ def union_covers(u: BeadUnion, polygons: np.ndarray) -> np.ndarray:
         if near.size:
             out[i] = bool(shapely.covers(shapely.union_all(u.polygons(near)), poly))
     return out
+
+
+_MANY = 32
+_whole_cache: list[tuple[BeadUnion, object]] = []
+
+
+def _whole(u: BeadUnion):
+    """G' as one prepared GEOS geometry, cached for the last few unions."""
+    for v, g in _whole_cache:
+        if v is u:
+            return g
+    g = u.geometry()
+    shapely.prepare(g)
+    _whole_cache.insert(0, (u, g))
+    del _whole_cache[4:]
+    return g
 
 
 # ---------------------------------------------------------------------------- kernels
