@@ -46,8 +46,8 @@ boundary crossings, so those gaps cannot mislead it.
 
 Conventions: coordinates and lengths in mm; edges as four arrays
 (x0, y0, x1, y1). Cost: linear in the beads times the number of beads
-overlapping each (a uniform grid finds them); about 4 µs per bead on the
-sample parts, 5× less than GEOS's union and buffer of the same beads.
+overlapping each (a uniform grid finds them): on Benchy (76 000 beads in 240
+layers) about 0.7 s, against 3.9 s for GEOS's union and buffer of the same beads.
 """
 
 from __future__ import annotations
