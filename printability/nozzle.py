@@ -227,6 +227,44 @@ class Nozzle:
             lo, hi = min(lo, mid - half), max(hi, mid + half)
         return float(hi - lo)
 
+    def bead_widths(self, direction: np.ndarray, angle: np.ndarray) -> np.ndarray:
+        """:meth:`bead_width` of many moves at once (arrays of degrees, broadcast).
+
+        The same formulas elementwise (numpy's trigonometry may differ from
+        :mod:`math`'s in the last bit). Cost: O(n) per orifice (O(n·v) for a
+        polygon of v vertices).
+        """
+        theta = np.radians(np.asarray(direction, dtype=float))
+        ang = np.asarray(angle, dtype=float)
+        theta, ang = np.broadcast_arrays(theta, ang)
+        nx, ny = -np.sin(theta), np.cos(theta)
+        lo = np.full(theta.shape, np.inf)
+        hi = np.full(theta.shape, -np.inf)
+        for f in self.footprints:
+            if f.kind in ("circle", "ellipse", "rect"):
+                phi = np.radians(self.mount_angle + ang + f.rotation)
+                c, s = np.cos(phi), np.sin(phi)
+                mid = (c * f.center[0] - s * f.center[1]) * nx \
+                    + (s * f.center[0] + c * f.center[1]) * ny
+                ux, uy = c * nx + s * ny, -s * nx + c * ny
+                if f.kind == "rect":
+                    half = np.abs(f.a * ux) + np.abs(f.b * uy)
+                else:
+                    half = np.hypot(f.a * ux, f.b * uy)
+                lo = np.minimum(lo, mid - half)
+                hi = np.maximum(hi, mid + half)
+                continue
+            # polygon: project the turned vertices on the normal
+            pts = np.asarray(f.vertices, dtype=float)
+            phi = np.radians(self.mount_angle + ang)
+            c, s = np.cos(phi), np.sin(phi)
+            px = c[..., None] * pts[:, 0] - s[..., None] * pts[:, 1]
+            py = s[..., None] * pts[:, 0] + c[..., None] * pts[:, 1]
+            proj = px * nx[..., None] + py * ny[..., None]
+            lo = np.minimum(lo, proj.min(axis=-1))
+            hi = np.maximum(hi, proj.max(axis=-1))
+        return hi - lo
+
 
 # --------------------------------------------------------------------------- parsing
 

@@ -152,7 +152,6 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
     s_angle = np.asarray(seg_angle, dtype=float).tolist()
     s_fold = np.asarray(seg_fold, dtype=bool).tolist()
     s_turn = planned_turns(np.asarray(seg_angle, dtype=float)).tolist()
-    heights_l = np.asarray(heights, dtype=float).tolist()
     if len(seg):
         layer_of_seg = moves["layer"][seg_move]
         h_seg = np.where(layer_of_seg >= 0,
@@ -163,6 +162,8 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
                             bead_area).tolist()
     else:
         s_scale = []
+    piece_scale = _piece_scales(seg, seg_pieces, widths, h_seg if len(seg) else None, turns,
+                                e_policy, nozzle, bead_area)
 
     cur = 0.0  # rotary coordinate
     letter = wopts.letter
@@ -286,7 +287,6 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
         e_rel = bool(m_flags[mi] & 1)
         e_move = m_e[mi]
         simple = (a1 - a0 == 1 and a0 not in seg_pieces and m_kind[mi] <= 1)
-        h = heights_l[layer] if layer >= 0 else 0.2
         if simple:
             phi = s_angle[a0]
             add: list[str] = []
@@ -344,10 +344,11 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
             se = s_e[s]
             in_pieces = s in seg_pieces
             if in_pieces:
-                plist = [(p.t0, p.t1, p.angle) for p in seg_pieces[s]]
+                plist = [(p.t0, p.t1, p.angle, sc)
+                         for p, sc in zip(seg_pieces[s], piece_scale[s], strict=True)]
             else:
-                plist = [(0.0, 1.0, s_angle[s])]
-            for t0, t1, phi in plist:
+                plist = [(0.0, 1.0, s_angle[s], s_scale[s])]
+            for t0, t1, phi, scale in plist:
                 qx0, qy0 = sx0 + t0 * (sx1 - sx0), sy0 + t0 * (sy1 - sy0)
                 qx1, qy1 = sx0 + t1 * (sx1 - sx0), sy0 + t1 * (sy1 - sy0)
                 if math.hypot(qx0 - px, qy0 - py) > 1e-9:
@@ -368,14 +369,6 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
                         turned[layer] = turned.get(layer, 0) + 1
                         cur = c
                         cur_text = c_text
-                if in_pieces:
-                    scale = 1.0
-                    if math.isfinite(phi):
-                        rel = math.degrees(math.atan2(sy1 - sy0, sx1 - sx0))
-                        w_laid = nozzle.bead_width(rel, phi) if turns else float("nan")
-                        scale = e_scale(w_laid, widths[s], h, e_policy, nozzle, bead_area)
-                else:
-                    scale = s_scale[s]
                 de = se * (t1 - t0) * scale
                 e_acc += de
                 if e_rel:
@@ -408,6 +401,34 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
         last_travel_chunk = None
     chunks.append(data[pos:])
     return out, turned
+
+
+def _piece_scales(seg, seg_pieces, widths, h_seg, turns: bool, e_policy: str, nozzle: Nozzle,
+                  bead_area) -> dict[int, list[float]]:
+    """Per split chord, the E factor of each of its pieces (:func:`e_scale` of the width
+    the piece lays at its orientation), for all pieces at once."""
+    if not seg_pieces:
+        return {}
+    keys = list(seg_pieces)
+    counts = [len(seg_pieces[s]) for s in keys]
+    p_seg = np.repeat(np.asarray(keys, dtype=np.int64), counts)
+    phi = np.fromiter((p.angle for s in keys for p in seg_pieces[s]), dtype=float,
+                      count=len(p_seg))
+    scale = np.ones(len(p_seg))
+    live = np.isfinite(phi)
+    if turns and live.any():
+        sg = seg[p_seg[live]]
+        rel = np.degrees(np.arctan2(sg["y1"] - sg["y0"], sg["x1"] - sg["x0"]))
+        w_laid = nozzle.bead_widths(rel, phi[live])
+        scale[live] = e_scales(w_laid, np.asarray(widths, dtype=float)[p_seg[live]],
+                               h_seg[p_seg[live]], e_policy, nozzle, bead_area)
+    flat = scale.tolist()
+    out: dict[int, list[float]] = {}
+    pos = 0
+    for s, n in zip(keys, counts, strict=True):
+        out[s] = flat[pos:pos + n]
+        pos += n
+    return out
 
 
 def planned_turns(seg_angle: np.ndarray) -> np.ndarray:
