@@ -354,64 +354,58 @@ def postprocess_bytes(
                            ("e", "f8"), ("move", "i8")])
     # new lines are rounded to 4 decimals: keep that displacement inside the tolerance
     tol_grow = options.tolerance - wopts.rounding
+    seg_len = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"]) if len(seg) else np.zeros(0)
     if part_idx.size and not narrow_beads:
         seg_move = part_idx[seg["move"]]  # index into g.moves
         widths = _planned_widths(g, seg, seg_move, float(fd))
         seg_layer = moves["layer"][seg_move]
-        has_target, prepared = _layer_targets(g, float(fd), quad_segs, tol_grow,
-                                              workers=_workers(options))
+        order = np.argsort(seg_layer, kind="stable")
+        bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1))
+        batches = _layer_targets(g, float(fd), quad_segs, tol_grow, workers=_workers(options),
+                                 planned=(seg, order, bounds), reach=nozzle.radius)
     else:
         seg_move = np.zeros(0, np.int64)
         widths = np.zeros(0)
-        seg_layer = np.zeros(0, np.int64)
-        has_target, prepared = [False] * n_layers, iter(())
+        order = np.zeros(0, np.int64)
+        bounds = np.zeros(n_layers + 1, np.int64)
+        batches = iter(())
 
-    # ---- plan every layer
+    # ---- plan every layer: batches of layers side by side, one target per batch
     seg_angle = np.zeros(len(seg))
     seg_fold = np.zeros(len(seg), dtype=bool)
     seg_width_laid = np.full(len(seg), np.nan)
     seg_pieces: dict[int, list] = {}
     reports: list[LayerReport] = []
     prev = 0.0
-    order = np.argsort(seg_layer, kind="stable") if len(seg) else np.zeros(0, np.int64)
-    bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1)) if len(seg) else None
-    seg_len = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"]) if len(seg) else np.zeros(0)
-    for k in range(n_layers):
-        if not has_target[k]:
-            continue
-        idx = order[bounds[k]:bounds[k + 1]]
-        p0 = np.column_stack([seg["x0"][idx], seg["y0"][idx]])
-        p1 = np.column_stack([seg["x1"][idx], seg["y1"][idx]])
-        tgt, target_area = next(prepared)
-        sm = seg_move[idx]
-        chained = np.zeros(idx.size, dtype=bool)
-        if idx.size > 1 and policy == "xy":
-            same = (sm[1:] == sm[:-1]) | ((sm[1:] == sm[:-1] + 1)
-                                          & (np.abs(p0[1:] - p1[:-1]).max(axis=1) < 1e-9))
-            chained[1:] = same
-        plan = plan_orientations(p0, p1, widths[idx], tgt, nozzle, machine,
-                                 options=options.orientation, previous=prev,
-                                 prepared_target=tgt, chained=chained,
-                                 narrow_beads=narrow_beads)
-        seg_angle[idx] = plan.angle
-        seg_fold[idx] = plan.fold
-        seg_width_laid[idx] = plan.width
-        for i, pieces in plan.pieces.items():
-            seg_pieces[int(idx[i])] = pieces
-        finite = plan.angle[np.isfinite(plan.angle)]
-        if finite.size:
-            prev = float(finite[-1])
-        dl = plan.dropped_length(seg_len[idx])
-        dropped_area = 0.0
-        for i, pieces in plan.pieces.items():
-            kept = sum(p.t1 - p.t0 for p in pieces)
-            dropped_area += float(seg_len[idx][i]) * max(0.0, 1 - kept) * float(widths[idx][i])
-        reports.append(LayerReport(
-            index=k, z=float(g.layers["z"][k]), target_area=target_area,
-            moves=int(idx.size), turned=0, split_moves=plan.split_moves,
-            dropped_moves=plan.dropped_moves, dropped_length=dl, dropped_area=dropped_area,
-            printed_length=float(seg_len[idx].sum()) - dl,
-        ))
+    for layers, offset, tgt, areas in batches:
+        rows = [order[bounds[k]:bounds[k + 1]] for k in layers]
+        counts = np.array([r.size for r in rows], dtype=np.int64)
+        idx = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        lay_of = np.repeat(np.arange(len(layers)), counts)
+        plan = None
+        if idx.size:
+            p0 = np.column_stack([seg["x0"][idx], seg["y0"][idx]]) + offset[lay_of]
+            p1 = np.column_stack([seg["x1"][idx], seg["y1"][idx]]) + offset[lay_of]
+            sm = seg_move[idx]
+            chained = np.zeros(idx.size, dtype=bool)
+            if idx.size > 1 and policy == "xy":
+                same = (sm[1:] == sm[:-1]) | ((sm[1:] == sm[:-1] + 1)
+                                              & (np.abs(p0[1:] - p1[:-1]).max(axis=1) < 1e-9))
+                chained[1:] = same & (lay_of[1:] == lay_of[:-1])
+            plan = plan_orientations(p0, p1, widths[idx], tgt, nozzle, machine,
+                                     options=options.orientation, previous=prev,
+                                     prepared_target=tgt, chained=chained,
+                                     narrow_beads=narrow_beads)
+            seg_angle[idx] = plan.angle
+            seg_fold[idx] = plan.fold
+            seg_width_laid[idx] = plan.width
+            for i, pieces in plan.pieces.items():
+                seg_pieces[int(idx[i])] = pieces
+            finite = plan.angle[np.isfinite(plan.angle)]
+            if finite.size:
+                prev = float(finite[-1])
+        reports.extend(_layer_reports(g, layers, areas, idx, counts, lay_of, plan, seg_len,
+                                      widths))
 
     # ---- rewrite
     out, turned_per_layer = rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
@@ -449,6 +443,35 @@ def postprocess_bytes(
     return result_bytes, res
 
 
+def _layer_reports(g, layers, areas, idx, counts, lay_of, plan, seg_len, widths
+                   ) -> list[LayerReport]:
+    """What the plan of a batch did to each of its layers (``idx``: the batch's chords,
+    ``counts`` per layer, ``lay_of`` the layer of each within the batch)."""
+    n = len(layers)
+    split = np.zeros(n, np.int64)
+    dropped = np.zeros(n, np.int64)
+    d_len = [0.0] * n
+    d_area = [0.0] * n
+    if plan is not None:
+        for i, pieces in plan.pieces.items():
+            j = int(lay_of[i])
+            kept = sum(p.t1 - p.t0 for p in pieces)
+            if pieces:
+                split[j] += 1
+            else:
+                dropped[j] += 1
+            gone = float(seg_len[idx[i]]) * max(0.0, 1.0 - kept)
+            d_len[j] += gone
+            d_area[j] += float(seg_len[idx[i]]) * max(0.0, 1 - kept) * float(widths[idx[i]])
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    return [LayerReport(
+        index=k, z=float(g.layers["z"][k]), target_area=areas[j], moves=int(counts[j]),
+        turned=0, split_moves=int(split[j]), dropped_moves=int(dropped[j]),
+        dropped_length=d_len[j], dropped_area=d_area[j],
+        printed_length=float(seg_len[idx[starts[j]:starts[j + 1]]].sum()) - d_len[j],
+    ) for j, k in enumerate(layers)]
+
+
 def _workers(options: PostprocessOptions) -> int:
     if options.workers is not None:
         if options.workers < 1:
@@ -457,19 +480,35 @@ def _workers(options: PostprocessOptions) -> int:
     return max(1, min(4, os.cpu_count() or 1))
 
 
+_BATCH_AREA = 250_000.0
+"""Largest area (mm²) the tiles of one batch of layers cover: up to it, the boundary grid of
+:func:`printability.motion.fastfit.boundary_grid` keeps its 1 mm cells."""
+_BATCH_BEADS = 20_000
+"""Most beads in one batch (about 45 MB of bead polygons)."""
+_TILE_GAP = 1.0
+"""Space between the tiles of a batch, mm."""
+
+
 def _layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float, *,
-                   workers: int = 1) -> tuple[list[bool], Iterator[tuple[object, float]]]:
-    """Per layer, whether it has a target, and for those layers in order (the prepared
-    target the planner tests footprints against, the area of G in mm²).
+                   workers: int = 1, planned: tuple, reach: float
+                   ) -> Iterator[tuple[list[int], np.ndarray, object, list[float]]]:
+    """The layers that have a target, in batches, in order: per batch (its layers, their
+    translations (n, 2) mm, the prepared target the planner tests footprints against,
+    the area of G of each layer in mm²).
 
     G is the union of the layer's beads as :mod:`printability.sources.gcode` rebuilds it
     (the same reconstruction as ``printability analyze``, so the two agree on what the
     part is). The planner tests against G grown by ``tolerance``: the bead union of
     :mod:`printability.motion.beadunion`, built without an overlay, for which the area of
     G is the union's less ``tolerance``/2 × its perimeter (within that much of the exact
-    area). A tolerance too small for that construction falls back to GEOS (the union,
-    then a buffer), computed on ``workers`` threads while the caller plans.
+    area). Layers are laid side by side (:mod:`printability.motion.tiles`) so that one
+    union serves a batch; each tile holds the layer's beads and its ``planned`` moves
+    (``(seg, order, bounds)``: chords, their order by layer and each layer's rows of
+    it) grown by ``reach``, the nozzle's radius. A tolerance too small for the bead
+    union falls back to GEOS (the union, then a buffer), one layer per batch. Targets
+    are built on ``workers`` threads while the caller plans.
     """
+    from printability.motion.tiles import tile_layers
     from printability.settings import Settings
     from printability.sources.gcode import layer_beads, layer_regions
 
@@ -479,35 +518,87 @@ def _layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float
     good = np.isfinite(width) & (width > 0)
     per_layer = [np.flatnonzero(good[bounds[k]:bounds[k + 1]]) + bounds[k]
                  for k in range(len(g.layers))]
-    has = [rows.size > 0 for rows in per_layer]
     r_max = float(width[good].max()) / 2 if good.any() else 0.0
     if _union_edges(r_max, tolerance) <= 256:
-        def one(rows: np.ndarray) -> tuple[object, float]:
-            s = seg[rows]
-            u = bead_union(np.column_stack([s["x0"], s["y0"]]),
-                           np.column_stack([s["x1"], s["y1"]]), width[rows] / 2,
-                           grow=tolerance)
-            return u, max(0.0, u.area - tolerance / 2 * u.perimeter)
+        with_target = [k for k in range(len(g.layers)) if per_layer[k].size]
+        if not with_target:
+            return iter(())
+        lo, hi = _layer_boxes(seg, width, per_layer, with_target, tolerance, planned, reach)
+        tiling = tile_layers(lo, hi, [per_layer[k].size for k in with_target],
+                             gap=_TILE_GAP, max_area=_BATCH_AREA, max_weight=_BATCH_BEADS)
 
-        todo = [rows for rows in per_layer if rows.size]
+        def one(b: int) -> tuple[list[int], np.ndarray, object, list[float]]:
+            first, stop = int(tiling.bounds[b]), int(tiling.bounds[b + 1])
+            layers = with_target[first:stop]
+            offset = tiling.offset[first:stop]
+            rows = np.concatenate([per_layer[k] for k in layers])
+            shift = np.repeat(offset, [per_layer[k].size for k in layers], axis=0)
+            s = seg[rows]
+            u = bead_union(np.column_stack([s["x0"], s["y0"]]) + shift,
+                           np.column_stack([s["x1"], s["y1"]]) + shift, width[rows] / 2,
+                           grow=tolerance)
+            return layers, offset, u, _tile_areas(u, tiling, b, tolerance)
+
+        todo = list(range(tiling.batches))
         if workers <= 1:
-            return has, map(one, todo)
-        return has, _threaded(one, todo, workers)
+            return map(one, todo)
+        return _threaded(one, todo, workers)
 
     # GEOS: G, then G grown by the tolerance
     regions = [None] * len(g.layers)
     for li, geom, _facts in layer_regions(g, settings=settings,
                                           filament_diameter=filament_diameter):
         regions[li] = geom if geom is not None and not geom.is_empty else None
-    has = [r is not None for r in regions]
-    todo = [r for r in regions if r is not None]
+    todo_l = [k for k in range(len(g.layers)) if regions[k] is not None]
 
-    def grown(t) -> tuple[object, float]:
-        return grown_target(t, tolerance), float(t.area)
+    def grown(k: int) -> tuple[list[int], np.ndarray, object, list[float]]:
+        t = regions[k]
+        return [k], np.zeros((1, 2)), grown_target(t, tolerance), [float(t.area)]
 
     if workers <= 1:
-        return has, map(grown, todo)
-    return has, _threaded(grown, todo, workers)
+        return map(grown, todo_l)
+    return _threaded(grown, todo_l, workers)
+
+
+def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
+    """Per layer: the box of its beads grown by their radius and the tolerance, and of its
+    planned chords grown by ``reach`` (mm): all its footprints and bead polygons."""
+    pseg, porder, pbounds = planned
+    lo = np.empty((len(layers), 2))
+    hi = np.empty((len(layers), 2))
+    for j, k in enumerate(layers):
+        rows = per_layer[k]
+        s = seg[rows]
+        grow = width[rows] / 2 + tolerance
+        xs = [np.minimum(s["x0"], s["x1"]) - grow, np.maximum(s["x0"], s["x1"]) + grow]
+        ys = [np.minimum(s["y0"], s["y1"]) - grow, np.maximum(s["y0"], s["y1"]) + grow]
+        mine = porder[pbounds[k]:pbounds[k + 1]] if k + 1 < len(pbounds) else porder[:0]
+        if mine.size:
+            q = pseg[mine]
+            xs += [np.minimum(q["x0"], q["x1"]) - reach, np.maximum(q["x0"], q["x1"]) + reach]
+            ys += [np.minimum(q["y0"], q["y1"]) - reach, np.maximum(q["y0"], q["y1"]) + reach]
+        lo[j] = min(float(v.min()) for v in xs[0::2]), min(float(v.min()) for v in ys[0::2])
+        hi[j] = max(float(v.max()) for v in xs[1::2]), max(float(v.max()) for v in ys[1::2])
+    return lo, hi
+
+
+def _tile_areas(u, tiling, batch: int, tolerance: float) -> list[float]:
+    """The area of G of each layer of a batch, mm²: its tile's part of the union (Green's
+    theorem over the boundary pieces in the tile, about the tile's corner) less
+    ``tolerance``/2 × that part's length."""
+    n = int(tiling.bounds[batch + 1] - tiling.bounds[batch])
+    if len(u.ex0) == 0:
+        return [0.0] * n
+    j = tiling.tile_of(batch, (u.ex0 + u.ex1) / 2, (u.ey0 + u.ey1) / 2)
+    if (j < 0).any():
+        raise RuntimeError("a boundary piece of the bead union lies outside every tile")
+    cols = int(tiling.cols[batch])
+    px, py = tiling.pitch[batch]
+    ox, oy = (j % cols) * px, (j // cols) * py
+    x0, y0, x1, y1 = u.ex0 - ox, u.ey0 - oy, u.ex1 - ox, u.ey1 - oy
+    area = np.abs(0.5 * np.bincount(j, x0 * y1 - x1 * y0, minlength=n))
+    perimeter = np.bincount(j, np.hypot(x1 - x0, y1 - y0), minlength=n)
+    return np.maximum(0.0, area - tolerance / 2 * perimeter).tolist()
 
 
 def _union_edges(r: float, tolerance: float) -> float:

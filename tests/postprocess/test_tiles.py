@@ -1,0 +1,87 @@
+"""Layers side by side (printability.motion.tiles) and the post-processor planning in batches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import printability.postprocess as pp
+from printability.errors import InputError
+from printability.motion.tiles import tile_layers
+from printability.postprocess import PostprocessOptions, postprocess_bytes
+
+ELLIPSE = "ellipse:major=0.8,minor=0.3"
+
+
+@st.composite
+def layer_boxes(draw):
+    n = draw(st.integers(1, 40))
+    lo = np.array(draw(st.lists(st.tuples(st.floats(-500, 500), st.floats(-500, 500)),
+                                min_size=n, max_size=n)))
+    size = np.array(draw(st.lists(st.tuples(st.floats(0, 80), st.floats(0, 80)),
+                                  min_size=n, max_size=n)))
+    weight = np.array(draw(st.lists(st.integers(0, 500), min_size=n, max_size=n)), float)
+    return lo, lo + size, weight
+
+
+@given(layer_boxes(), st.floats(0.1, 5), st.floats(100, 50_000), st.floats(100, 3000))
+@settings(max_examples=150, deadline=None)
+def test_tiles_are_disjoint_bounded_and_found_again(boxes, gap, max_area, max_weight):
+    lo, hi, weight = boxes
+    t = tile_layers(lo, hi, weight, gap=gap, max_area=max_area, max_weight=max_weight)
+    assert t.bounds[0] == 0 and t.bounds[-1] == len(lo)
+    assert np.all(np.diff(t.bounds) >= 1)
+    for b in range(t.batches):
+        first, stop = t.bounds[b], t.bounds[b + 1]
+        n = stop - first
+        px, py = t.pitch[b]
+        # a batch of several layers keeps within both caps
+        if n > 1:
+            assert n * px * py <= max_area * (1 + 1e-9)
+            assert weight[first:stop].sum() <= max_weight
+        cols = t.cols[b]
+        for j in range(n):
+            k = first + j
+            a, z = lo[k] + t.offset[k], hi[k] + t.offset[k]
+            col, row = j % cols, j // cols
+            # inside its own tile, at least gap/2 from its edges: boxes of a batch never meet
+            assert a[0] >= col * px + gap / 2 - 1e-9 and z[0] <= (col + 1) * px - gap / 2 + 1e-9
+            assert a[1] >= row * py + gap / 2 - 1e-9 and z[1] <= (row + 1) * py - gap / 2 + 1e-9
+            centre = (a + z) / 2
+            assert t.tile_of(b, np.array([centre[0]]), np.array([centre[1]]))[0] == j
+        # outside every tile
+        assert t.tile_of(b, np.array([-1.0]), np.array([0.5]))[0] == -1
+
+
+def test_tile_layers_refuses_bad_input():
+    lo = np.zeros((2, 2))
+    hi = np.ones((2, 2))
+    with pytest.raises(InputError, match="gap"):
+        tile_layers(lo, hi, [1, 1], gap=0.0, max_area=10, max_weight=10)
+    with pytest.raises(InputError, match="one row per layer"):
+        tile_layers(lo, hi, [1], gap=1.0, max_area=10, max_weight=10)
+    with pytest.raises(InputError, match="finite, non-empty box"):
+        tile_layers(lo, hi - 2, [1, 1], gap=1.0, max_area=10, max_weight=10)
+    empty = tile_layers(np.zeros((0, 2)), np.zeros((0, 2)), [], gap=1.0, max_area=10,
+                        max_weight=10)
+    assert empty.batches == 0
+
+
+def test_planning_in_batches_decides_as_layer_by_layer(prusa_short, monkeypatch):
+    """One union for all layers (one batch here) against one batch per layer: the same
+    layers, targets and moves; the decisions may differ only where a footprint grazes
+    the target within the translation's rounding (a few pieces)."""
+    data = prusa_short.read_bytes()
+    opts = PostprocessOptions(nozzle=ELLIPSE, machine="ttr")
+    _, batched = postprocess_bytes(data, options=opts)
+    monkeypatch.setattr(pp, "_BATCH_AREA", 1.0)  # every layer a batch of its own
+    _, alone = postprocess_bytes(data, options=opts)
+    assert [r.index for r in batched.layers] == [r.index for r in alone.layers]
+    assert len(batched.layers) > 1
+    for a, b in zip(batched.layers, alone.layers, strict=True):
+        assert a.moves == b.moves
+        assert a.target_area == pytest.approx(b.target_area, rel=1e-9)
+    assert abs(batched.split_moves - alone.split_moves) <= 0.01 * alone.split_moves + 1
+    assert batched.dropped_length == pytest.approx(alone.dropped_length, rel=0.02, abs=0.05)
