@@ -55,9 +55,14 @@ MARKER = "; printability"
 _FEED_POLICIES = ("xy", "euclidean", "inverse-time")
 
 
+_FIXED = tuple(f"%.{d}f" for d in range(18))
+
+
 def format_number(value: float, decimals: int) -> str:
     """``value`` with at most ``decimals`` decimals, trailing zeros dropped, never ``-0``."""
-    text = f"{value:.{decimals}f}"
+    # printf-style with a prebuilt spec: the same correctly rounded digits as
+    # f"{value:.{decimals}f}" at half the cost (it runs for every number written)
+    text = _FIXED[decimals] % value if 0 <= decimals < 18 else f"{value:.{decimals}f}"
     if "." in text:
         text = text.rstrip("0").rstrip(".")
     if text in ("-0", ""):

@@ -35,6 +35,16 @@ def test_format_number(value, decimals, text):
     assert format_number(value, decimals) == text
 
 
+@given(st.floats(allow_nan=False, allow_infinity=False, min_value=-1e6, max_value=1e6),
+       st.integers(0, 8))
+def test_format_number_rounds_as_python_formats(value, decimals):
+    """The digits of f"{value:.{decimals}f}" (correctly rounded), trailing zeros dropped."""
+    ref = f"{value:.{decimals}f}"
+    if "." in ref:
+        ref = ref.rstrip("0").rstrip(".")
+    assert format_number(value, decimals) == ("0" if ref in ("-0", "") else ref)
+
+
 @pytest.mark.parametrize(("target", "prev", "period", "expected"), [
     (350.0, 0.0, 360.0, -10.0),      # shortest signed step, not +350
     (170.0, 0.0, 180.0, -10.0),      # an ellipse turns 10°, not 170°
