@@ -46,6 +46,7 @@ __all__ = [
     "edit_line",
     "format_number",
     "header_lines",
+    "simple_move_span",
     "simple_move_words",
 ]
 
@@ -446,6 +447,14 @@ def simple_move_words(raw: bytes) -> list[bytes] | None:
     if m is None:
         return None
     return raw[m.start(1):m.end(1)].split()
+
+
+def simple_move_span(raw: bytes) -> tuple[int, int] | None:
+    """Where the address words of a line of the common slicer shape stand (``raw[a:b]``:
+    each word preceded by its blanks), or None for any other line (see
+    :func:`simple_move_words`)."""
+    m = _SIMPLE_MOVE.match(raw)
+    return None if m is None else m.span(1)
 
 
 def _edit_simple(raw: bytes, replace: Mapping[str, str] | None,

@@ -573,8 +573,11 @@ def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
         xs = [np.minimum(s["x0"], s["x1"]) - grow, np.maximum(s["x0"], s["x1"]) + grow]
         ys = [np.minimum(s["y0"], s["y1"]) - grow, np.maximum(s["y0"], s["y1"]) + grow]
         mine = porder[pbounds[k]:pbounds[k + 1]] if k + 1 < len(pbounds) else porder[:0]
-        if mine.size:
-            q = pseg[mine]
+        q = pseg[mine]
+        # (chords of unknown position are no extrusions; kept out of the box all the same)
+        q = q[np.isfinite(q["x0"]) & np.isfinite(q["y0"]) & np.isfinite(q["x1"])
+              & np.isfinite(q["y1"])]
+        if q.size:
             xs += [np.minimum(q["x0"], q["x1"]) - reach, np.maximum(q["x0"], q["x1"]) + reach]
             ys += [np.minimum(q["y0"], q["y1"]) - reach, np.maximum(q["y0"], q["y1"]) + reach]
         lo[j] = min(float(v.min()) for v in xs[0::2]), min(float(v.min()) for v in ys[0::2])
