@@ -6,5 +6,7 @@
 * :mod:`printability.motion.toolpaths` — perimeters, infill and their order
   (networkx) for ``printability generate``;
 * :mod:`printability.motion.check` — an independent check of what a G-code
-  file deposits against each layer's target.
+  file deposits against each layer's target;
+* :mod:`printability.motion.tiles` — layers laid side by side in one plane, so
+  that the post-processor plans a batch of layers against one target.
 """
