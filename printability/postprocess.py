@@ -46,6 +46,7 @@ or any other shape, is checked move by move with its whole orifice.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -613,13 +614,22 @@ def _union_edges(r: float, tolerance: float) -> float:
     return math.ceil(math.pi / (2 * math.acos(rho / rmax)))
 
 
-def _threaded(fn, items: list, workers: int):
-    """``map(fn, items)`` on ``workers`` threads, running ahead of the consumer (the
-    kernels release the GIL)."""
+def _threaded(fn, items: list, workers: int, *, ahead: int | None = None):
+    """``map(fn, items)`` on ``workers`` threads, running at most ``ahead`` (default
+    ``workers + 1``) items ahead of the consumer (the kernels release the GIL): targets
+    are built while the planner works, and no more of them are held than that."""
+    from collections import deque
     from concurrent.futures import ThreadPoolExecutor
 
+    limit = workers + 1 if ahead is None else max(1, ahead)
+    it = iter(items)
     with ThreadPoolExecutor(workers) as ex:
-        yield from ex.map(fn, items)
+        queue = deque(ex.submit(fn, item) for item in itertools.islice(it, limit))
+        while queue:
+            done = queue.popleft()
+            for item in itertools.islice(it, 1):
+                queue.append(ex.submit(fn, item))
+            yield done.result()
 
 
 def _planned_widths(g, seg, seg_move, filament_diameter) -> np.ndarray:

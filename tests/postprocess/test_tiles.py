@@ -85,3 +85,28 @@ def test_planning_in_batches_decides_as_layer_by_layer(prusa_short, monkeypatch)
         assert a.target_area == pytest.approx(b.target_area, rel=1e-9)
     assert abs(batched.split_moves - alone.split_moves) <= 0.01 * alone.split_moves + 1
     assert batched.dropped_length == pytest.approx(alone.dropped_length, rel=0.02, abs=0.05)
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3])
+def test_targets_are_built_a_bounded_number_ahead(workers):
+    """The threads building layer targets run at most workers + 1 ahead of the planner:
+    memory holds that many targets, not the whole part's."""
+    import threading
+    import time
+
+    started = []
+    lock = threading.Lock()
+
+    def build(i):
+        with lock:
+            started.append(i)
+        time.sleep(0.002)
+        return i
+
+    out = []
+    for value in pp._threaded(build, list(range(40)), workers):
+        with lock:
+            assert len(started) - len(out) <= workers + 1
+        out.append(value)
+        time.sleep(0.004)  # a slow consumer: the builders would run far ahead
+    assert out == list(range(40))
