@@ -36,7 +36,9 @@ rounding of the coordinates written) absorbs the rounding of coordinates and
 of the polygonal arcs. Footprints are tested against G grown by that
 tolerance, built as the union of one convex polygon per bead
 (:mod:`printability.motion.beadunion`: between G ⊕ τ/2 and G ⊕ τ, without a
-GEOS overlay). Non-part moves are left as they are.
+GEOS overlay). Layers are planned in batches, laid side by side in one plane
+(:mod:`printability.motion.tiles`) so that one union and one planner call serve
+a batch. Non-part moves are left as they are.
 
 A round nozzle no larger than the one the file was sliced for (the slicer's
 ``nozzle_diameter``) lays the slicer's own beads, each inside G by
@@ -463,7 +465,7 @@ def _layer_reports(g, layers, areas, idx, counts, lay_of, plan, seg_len, widths
                 dropped[j] += 1
             gone = float(seg_len[idx[i]]) * max(0.0, 1.0 - kept)
             d_len[j] += gone
-            d_area[j] += float(seg_len[idx[i]]) * max(0.0, 1 - kept) * float(widths[idx[i]])
+            d_area[j] += gone * float(widths[idx[i]])
     starts = np.concatenate([[0], np.cumsum(counts)])
     return [LayerReport(
         index=k, z=float(g.layers["z"][k]), target_area=areas[j], moves=int(counts[j]),
