@@ -110,3 +110,29 @@ def test_targets_are_built_a_bounded_number_ahead(workers):
         out.append(value)
         time.sleep(0.004)  # a slow consumer: the builders would run far ahead
     assert out == list(range(40))
+
+
+@pytest.mark.parametrize("spec", ["ellipse:major=0.8,minor=0.3,x=0.6",
+                                  "ellipse:major=0.6,minor=0.25,x=-0.5+rect:w=0.5,h=0.2,x=0.5"])
+def test_batches_keep_offset_orifices_inside_their_layer(prusa_short, spec, monkeypatch):
+    """Orifices away from the rotation axis reach farther from the path than a centred
+    one: the tiles hold that reach, so a batch never lets a footprint lean on another
+    layer's target, even with tiles almost touching. Swept along the emitted moves,
+    nothing leaves its own layer's G."""
+    from pp_helpers import geos_targets
+
+    from gcode import parse_gcode
+    from printability.motion.check import check_deposition, extrusion_chords
+    from printability.nozzle import parse_nozzle
+
+    monkeypatch.setattr(pp, "_TILE_GAP", 1e-3)
+    data = prusa_short.read_bytes()
+    new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=spec, machine="ttr"))
+    assert len(res.layers) > 1
+    targets = geos_targets(parse_gcode(data))
+    layers = [i for i, t in enumerate(targets) if t is not None][1:3]
+    reports = check_deposition(extrusion_chords(parse_gcode(new)), targets, parse_nozzle(spec),
+                               layers=layers)
+    assert len(reports) == len(layers)
+    for r in reports:
+        assert r.max_outside <= 1e-3 + 2e-4, f"layer {r.layer}: {r.max_outside} mm outside"
