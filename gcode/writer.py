@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -43,10 +43,10 @@ __all__ = [
     "MARKER",
     "Emitter",
     "WriterOptions",
+    "edit_e",
     "edit_line",
     "format_number",
     "header_lines",
-    "simple_move_span",
     "simple_move_words",
 ]
 
@@ -449,12 +449,47 @@ def simple_move_words(raw: bytes) -> list[bytes] | None:
     return raw[m.start(1):m.end(1)].split()
 
 
-def simple_move_span(raw: bytes) -> tuple[int, int] | None:
-    """Where the address words of a line of the common slicer shape stand (``raw[a:b]``:
-    each word preceded by its blanks), or None for any other line (see
-    :func:`simple_move_words`)."""
+def edit_e(raw: bytes, new_e: Callable[[float], str], *,
+           add: Sequence[str] = ()) -> tuple[bytes, float] | None:
+    """Replace the E word of a line of the common slicer shape, in one pass over it.
+
+    Parameters
+    ----------
+    raw
+        The line, with its terminator.
+    new_e
+        The new value's text (without the letter), from the value the line has.
+    add
+        Words appended as :func:`edit_line` appends them.
+
+    Returns
+    -------
+    (bytes, float) or None
+        The new line (what ``edit_line(raw, replace={"E": "E" + new_e(v)}, add=add)``
+        gives) and the value ``v`` the line had; None when the line is not of the common
+        shape or has no E word (use :func:`edit_line`).
+    """
     m = _SIMPLE_MOVE.match(raw)
-    return None if m is None else m.span(1)
+    if m is None:
+        return None
+    a, b = m.span(1)
+    parts = raw[a:b].split(b" ")
+    for i, part in enumerate(parts):
+        if part[:1] == b"E":
+            value = float(part[1:])
+            parts[i] = b"E" + new_e(value).encode("ascii")
+            return _assemble(raw, a, b, parts, add), value
+    return None
+
+
+def _assemble(raw: bytes, a: int, b: int, parts: list[bytes] | None,
+              extra: Sequence[str]) -> bytes:
+    """The line with its words ``raw[a:b]`` replaced by ``parts`` joined on single blanks
+    (None: kept) and the ``extra`` words appended after them."""
+    head = raw[:b] if parts is None else raw[:a] + b" ".join(parts)
+    if not extra:
+        return head + raw[b:]
+    return head + b" " + b" ".join(w.encode("ascii") for w in extra) + raw[b:]
 
 
 def _edit_simple(raw: bytes, replace: Mapping[str, str] | None,
@@ -464,7 +499,7 @@ def _edit_simple(raw: bytes, replace: Mapping[str, str] | None,
     if m is None:
         return None
     a, b = m.span(1)
-    head = raw[:b]
+    parts = None
     todo = dict(replace) if replace else {}
     if todo and a < b:
         # split on single spaces so that runs of blanks come back unchanged from the join
@@ -474,11 +509,7 @@ def _edit_simple(raw: bytes, replace: Mapping[str, str] | None,
                 parts[i] = todo.pop(chr(part[0])).encode("ascii")
                 if not todo:
                     break
-        head = raw[:a] + b" ".join(parts)
-    extra = [*todo.values(), *add]
-    if not extra:
-        return head + raw[b:]
-    return head + b" " + b" ".join(w.encode("ascii") for w in extra) + raw[b:]
+    return _assemble(raw, a, b, parts, [*todo.values(), *add])
 
 
 def edit_line(raw: bytes, *, replace: Mapping[str, str] | None = None,

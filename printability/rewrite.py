@@ -87,7 +87,7 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
     """
     from gcode.line import parse_line
     from gcode.rotary import bead_area
-    from gcode.writer import edit_line, simple_move_span, simple_move_words
+    from gcode.writer import edit_e, edit_line, simple_move_words
 
     out = RewriteOutput()
     n_lines = len(g.lines)
@@ -283,9 +283,7 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
         # ---- this move is rewritten
         layer = m_layer[mi]
         a0, a1 = first_seg[mi]
-        tail = raw[-1:]  # eol_of, inlined: it runs for every rewritten move
-        eol = ((b"\r\n" if raw[-2:-1] == b"\r" else b"\n") if tail == b"\n"
-               else (b"\r" if tail == b"\r" else b"\n"))
+        eol = eol_of(raw)
         e_rel = bool(m_flags[mi] & 1)
         e_move = m_e[mi]
         simple = (a1 - a0 == 1 and a0 not in seg_pieces and m_kind[mi] <= 1)
@@ -307,31 +305,20 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
                     turn_to(phi, c, c_text, eol, layer)
             scale = s_scale[a0]
             replace = {}
-            span = simple_move_span(raw) if scale != 1.0 else None
-            if span is not None:
-                # the common shape: E read and replaced in one pass over the words (what
-                # words() and edit_line() do, without matching the line twice)
-                wa, wb = span
-                parts = raw[wa:wb].split(b" ")
-                for i, part in enumerate(parts):
-                    if part[:1] == b"E":
-                        e_end = float(part[1:])
-                        new_e = e_move * scale if e_rel else (e_end - e_move) + e_move * scale
-                        parts[i] = b"E" + format_number(new_e, ed).encode()
-                        extra = (b" " + b" ".join(w.encode("ascii") for w in add)) if add else b""
-                        chunks.append(raw[:wa] + b" ".join(parts) + extra + raw[wb:])
-                        out.changed += 1
-                        if not e_rel:
-                            chunks.append(f"G92 E{format_number(e_end, ed)}".encode() + eol)
-                            out.inserted += 1
-                        break
-                else:
-                    span = None  # no E word: only the rotary word, below
-                    scale = 1.0
-                if span is not None:
+            if scale != 1.0:
+                # the common shape: E read and replaced in one pass over the line
+                edited = edit_e(raw, lambda v, m=e_move, k=scale, rel=e_rel: format_number(
+                    m * k if rel else (v - m) + m * k, ed), add=add)
+                if edited is not None:
+                    line, e_end = edited
+                    chunks.append(line)
+                    out.changed += 1
+                    if not e_rel:
+                        chunks.append(f"G92 E{format_number(e_end, ed)}".encode() + eol)
+                        out.inserted += 1
                     last_travel_chunk = None
                     continue
-            if scale != 1.0:
+                # another shape, or no E word: read and edit through the tokeniser
                 _, has_e, e_end_abs, e_start_abs = words(raw, e_rel, e_move)
                 if has_e:
                     if e_rel:

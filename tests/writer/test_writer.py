@@ -22,7 +22,14 @@ from gcode.rotary import (
     unwrap_sequence,
     width_from_e,
 )
-from gcode.writer import Emitter, WriterOptions, edit_line, format_number, header_lines
+from gcode.writer import (
+    Emitter,
+    WriterOptions,
+    edit_e,
+    edit_line,
+    format_number,
+    header_lines,
+)
 
 GOLDEN = Path(__file__).with_name("golden")
 
@@ -196,3 +203,21 @@ def test_unwind_on_travel_brings_axis_back():
 ])
 def test_edit_line_keeps_every_other_byte(raw, kwargs, expected):
     assert edit_line(raw, **kwargs) == expected
+
+
+@pytest.mark.parametrize(("raw", "value"), [
+    (b"G1 X1.5 Y2 E0.0123\n", 0.0123), (b"G1  X1.5 E.5 F1800 ; perimeter\r\n", 0.5),
+    (b"G1 E-0.8 F2100\n", -0.8), (b"G1 X1 Y2 E3", 3.0)])
+@pytest.mark.parametrize("add", [(), ("C12.5",)])
+def test_edit_e_is_edit_line_in_one_pass(raw, value, add):
+    """The line edit_line makes (E replaced in place, words added after the last), and the
+    value the line had."""
+    line, old = edit_e(raw, lambda v: format_number(v * 2, 5), add=add)
+    assert old == value
+    assert line == edit_line(raw, replace={"E": "E" + format_number(value * 2, 5)},
+                             add=list(add))
+
+
+@pytest.mark.parametrize("raw", [b"G1 X1 Y2\n", b"N12 G1 X1 E2*57\n", b"M104 S200\n"])
+def test_edit_e_leaves_other_lines_to_edit_line(raw):
+    assert edit_e(raw, lambda v: "0") is None
