@@ -70,6 +70,16 @@ def postprocess(data: bytes, nozzle: str) -> tuple[float, float, object]:
     return time.perf_counter() - t0, time.process_time() - c0, res
 
 
+def first_layers(data: bytes, n: int) -> bytes:
+    """The G-code up to its (n+1)-th ``;LAYER_CHANGE`` (PrusaSlicer's layer marker)."""
+    pos = -1
+    for _ in range(n + 1):
+        pos = data.find(b"\n;LAYER_CHANGE", pos + 1)
+        if pos < 0:
+            return data
+    return data[:pos + 1]
+
+
 def plugin_run(path: Path, nozzle: str) -> tuple[float, float]:
     """The plugin in a new process, as a slicer calls it (file rewritten in place);
     (wall s, CPU s)."""
@@ -100,12 +110,10 @@ def main(argv: list[str] | None = None) -> int:
         # the plugin's start: a new process on the cube's first two layers (every kernel
         # loaded, almost no work)
         tiny = Path(tmp) / "two_layers.gcode"
-        data = warm.read_bytes()
-        cut = data.find(b"\n;LAYER_CHANGE", data.find(b"\n;LAYER_CHANGE",
-                                                       data.find(b"\n;LAYER_CHANGE") + 1) + 1)
-        tiny.write_bytes(data[:cut + 1] if cut > 0 else data)
+        two = first_layers(warm.read_bytes(), 2)
+        tiny.write_bytes(two)
         plugin_run(tiny, ELLIPSE)  # the first run may write caches
-        tiny.write_bytes(data[:cut + 1] if cut > 0 else data)
+        tiny.write_bytes(two)  # the plugin rewrote it in place (and marked it processed)
         start_wall, start_cpu = plugin_run(tiny, ELLIPSE)
         print(f"plugin start (new process, the cube's first two layers): {start_wall:.2f} s "
               f"wall, {start_cpu:.2f} s CPU")

@@ -36,9 +36,10 @@ rounding of the coordinates written) absorbs the rounding of coordinates and
 of the polygonal arcs. Footprints are tested against G grown by that
 tolerance, built as the union of one convex polygon per bead
 (:mod:`printability.motion.beadunion`: between G ⊕ τ/2 and G ⊕ τ, without a
-GEOS overlay). Layers are planned in batches, laid side by side in one plane
-(:mod:`printability.motion.tiles`) so that one union and one planner call serve
-a batch. Non-part moves are left as they are.
+GEOS overlay; built by :mod:`printability.targets`). Layers are planned in
+batches, laid side by side in one plane (:mod:`printability.motion.tiles`) so
+that one union and one planner call serve a batch. Non-part moves are left as
+they are.
 
 A round nozzle no larger than the one the file was sliced for (the slicer's
 ``nozzle_diameter``) lays the slicer's own beads, each inside G by
@@ -48,13 +49,12 @@ or any other shape, is checked move by move with its whole orifice.
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import re
 import tempfile
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -65,15 +65,14 @@ from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
 from printability.errors import FileFormatError, InputError, PrintabilityOSError
 from printability.machine import Machine, parse_machine
-from printability.motion.beadunion import INNER, bead_union
 from printability.motion.orientation import (
     OrientationOptions,
-    grown_target,
     plan_orientations,
 )
 from printability.nozzle import Nozzle, parse_nozzle
 from printability.options import E_POLICIES, FEED_POLICIES
 from printability.rewrite import eol_of, first_command_line, rewrite
+from printability.targets import layer_targets
 
 __all__ = [
     "LayerReport",
@@ -364,7 +363,7 @@ def postprocess_bytes(
         seg_layer = moves["layer"][seg_move]
         order = np.argsort(seg_layer, kind="stable")
         bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1))
-        batches = _layer_targets(g, float(fd), quad_segs, tol_grow, workers=_workers(options),
+        batches = layer_targets(g, float(fd), quad_segs, tol_grow, workers=_workers(options),
                                  planned=(seg, order, bounds), reach=nozzle.radius)
     else:
         seg_move = np.zeros(0, np.int64)
@@ -481,157 +480,6 @@ def _workers(options: PostprocessOptions) -> int:
             raise InputError(f"workers must be at least 1; got {options.workers!r}")
         return int(options.workers)
     return max(1, min(4, os.cpu_count() or 1))
-
-
-_BATCH_AREA = 250_000.0
-"""Largest area (mm²) the tiles of one batch of layers cover: up to it, the boundary grid of
-:func:`printability.motion.fastfit.boundary_grid` keeps its 1 mm cells."""
-_BATCH_BEADS = 20_000
-"""Most beads in one batch (about 45 MB of bead polygons)."""
-_TILE_GAP = 1.0
-"""Space between the tiles of a batch, mm."""
-
-
-def _layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float, *,
-                   workers: int = 1, planned: tuple, reach: float
-                   ) -> Iterator[tuple[list[int], np.ndarray, object, list[float]]]:
-    """The layers that have a target, in batches, in order: per batch (its layers, their
-    translations (n, 2) mm, the prepared target the planner tests footprints against,
-    the area of G of each layer in mm²).
-
-    G is the union of the layer's beads as :mod:`printability.sources.gcode` rebuilds it
-    (the same reconstruction as ``printability analyze``, so the two agree on what the
-    part is). The planner tests against G grown by ``tolerance``: the bead union of
-    :mod:`printability.motion.beadunion`, built without an overlay, for which the area of
-    G is the union's less ``tolerance``/2 × its perimeter (within that much of the exact
-    area). Layers are laid side by side (:mod:`printability.motion.tiles`) so that one
-    union serves a batch; each tile holds the layer's beads and its ``planned`` moves
-    (``(seg, order, bounds)``: chords, their order by layer and each layer's rows of
-    it) grown by ``reach``, the nozzle's radius. A tolerance too small for the bead
-    union falls back to GEOS (the union, then a buffer), one layer per batch. Targets
-    are built on ``workers`` threads while the caller plans.
-    """
-    from printability.motion.tiles import tile_layers
-    from printability.settings import Settings
-    from printability.sources.gcode import layer_beads, layer_regions
-
-    settings = Settings(quad_segs=quad_segs, workers=workers)
-    seg, width, _, _, bounds, _ = layer_beads(g, settings=settings,
-                                              filament_diameter=filament_diameter)
-    good = np.isfinite(width) & (width > 0)
-    per_layer = [np.flatnonzero(good[bounds[k]:bounds[k + 1]]) + bounds[k]
-                 for k in range(len(g.layers))]
-    r_max = float(width[good].max()) / 2 if good.any() else 0.0
-    if _union_edges(r_max, tolerance) <= 256:
-        with_target = [k for k in range(len(g.layers)) if per_layer[k].size]
-        if not with_target:
-            return iter(())
-        lo, hi = _layer_boxes(seg, width, per_layer, with_target, tolerance, planned, reach)
-        tiling = tile_layers(lo, hi, [per_layer[k].size for k in with_target],
-                             gap=_TILE_GAP, max_area=_BATCH_AREA, max_weight=_BATCH_BEADS)
-
-        def one(b: int) -> tuple[list[int], np.ndarray, object, list[float]]:
-            first, stop = int(tiling.bounds[b]), int(tiling.bounds[b + 1])
-            layers = with_target[first:stop]
-            offset = tiling.offset[first:stop]
-            rows = np.concatenate([per_layer[k] for k in layers])
-            shift = np.repeat(offset, [per_layer[k].size for k in layers], axis=0)
-            s = seg[rows]
-            u = bead_union(np.column_stack([s["x0"], s["y0"]]) + shift,
-                           np.column_stack([s["x1"], s["y1"]]) + shift, width[rows] / 2,
-                           grow=tolerance)
-            return layers, offset, u, _tile_areas(u, tiling, b, tolerance)
-
-        todo = list(range(tiling.batches))
-        if workers <= 1:
-            return map(one, todo)
-        return _threaded(one, todo, workers)
-
-    # GEOS: G, then G grown by the tolerance
-    regions = [None] * len(g.layers)
-    for li, geom, _facts in layer_regions(g, settings=settings,
-                                          filament_diameter=filament_diameter):
-        regions[li] = geom if geom is not None and not geom.is_empty else None
-    todo_l = [k for k in range(len(g.layers)) if regions[k] is not None]
-
-    def grown(k: int) -> tuple[list[int], np.ndarray, object, list[float]]:
-        t = regions[k]
-        return [k], np.zeros((1, 2)), grown_target(t, tolerance), [float(t.area)]
-
-    if workers <= 1:
-        return map(grown, todo_l)
-    return _threaded(grown, todo_l, workers)
-
-
-def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
-    """Per layer: the box of its beads grown by their radius and the tolerance, and of its
-    planned chords grown by ``reach`` (mm): all its footprints and bead polygons."""
-    pseg, porder, pbounds = planned
-    lo = np.empty((len(layers), 2))
-    hi = np.empty((len(layers), 2))
-    for j, k in enumerate(layers):
-        rows = per_layer[k]
-        s = seg[rows]
-        grow = width[rows] / 2 + tolerance
-        xs = [np.minimum(s["x0"], s["x1"]) - grow, np.maximum(s["x0"], s["x1"]) + grow]
-        ys = [np.minimum(s["y0"], s["y1"]) - grow, np.maximum(s["y0"], s["y1"]) + grow]
-        mine = porder[pbounds[k]:pbounds[k + 1]] if k + 1 < len(pbounds) else porder[:0]
-        q = pseg[mine]
-        # (chords of unknown position are no extrusions; kept out of the box all the same)
-        q = q[np.isfinite(q["x0"]) & np.isfinite(q["y0"]) & np.isfinite(q["x1"])
-              & np.isfinite(q["y1"])]
-        if q.size:
-            xs += [np.minimum(q["x0"], q["x1"]) - reach, np.maximum(q["x0"], q["x1"]) + reach]
-            ys += [np.minimum(q["y0"], q["y1"]) - reach, np.maximum(q["y0"], q["y1"]) + reach]
-        lo[j] = min(float(v.min()) for v in xs[0::2]), min(float(v.min()) for v in ys[0::2])
-        hi[j] = max(float(v.max()) for v in xs[1::2]), max(float(v.max()) for v in ys[1::2])
-    return lo, hi
-
-
-def _tile_areas(u, tiling, batch: int, tolerance: float) -> list[float]:
-    """The area of G of each layer of a batch, mm²: its tile's part of the union (Green's
-    theorem over the boundary pieces in the tile, about the tile's corner) less
-    ``tolerance``/2 × that part's length."""
-    n = int(tiling.bounds[batch + 1] - tiling.bounds[batch])
-    if len(u.ex0) == 0:
-        return [0.0] * n
-    j = tiling.tile_of(batch, (u.ex0 + u.ex1) / 2, (u.ey0 + u.ey1) / 2)
-    if (j < 0).any():
-        raise RuntimeError("a boundary piece of the bead union lies outside every tile")
-    cols = int(tiling.cols[batch])
-    px, py = tiling.pitch[batch]
-    ox, oy = (j % cols) * px, (j // cols) * py
-    x0, y0, x1, y1 = u.ex0 - ox, u.ey0 - oy, u.ex1 - ox, u.ey1 - oy
-    area = np.abs(0.5 * np.bincount(j, x0 * y1 - x1 * y0, minlength=n))
-    perimeter = np.bincount(j, np.hypot(x1 - x0, y1 - y0), minlength=n)
-    return np.maximum(0.0, area - tolerance / 2 * perimeter).tolist()
-
-
-def _union_edges(r: float, tolerance: float) -> float:
-    """Edges per half turn of the widest bead's polygon in the bead union (inf: the
-    tolerance is too small for it)."""
-    rho, rmax = r + tolerance / 2, r * INNER + tolerance
-    if not (tolerance > 0 and rho < rmax):
-        return math.inf
-    return math.ceil(math.pi / (2 * math.acos(rho / rmax)))
-
-
-def _threaded(fn, items: list, workers: int, *, ahead: int | None = None):
-    """``map(fn, items)`` on ``workers`` threads, running at most ``ahead`` (default
-    ``workers + 1``) items ahead of the consumer (the kernels release the GIL): targets
-    are built while the planner works, and no more of them are held than that."""
-    from collections import deque
-    from concurrent.futures import ThreadPoolExecutor
-
-    limit = workers + 1 if ahead is None else max(1, ahead)
-    it = iter(items)
-    with ThreadPoolExecutor(workers) as ex:
-        queue = deque(ex.submit(fn, item) for item in itertools.islice(it, limit))
-        while queue:
-            done = queue.popleft()
-            for item in itertools.islice(it, 1):
-                queue.append(ex.submit(fn, item))
-            yield done.result()
 
 
 def _planned_widths(g, seg, seg_move, filament_diameter) -> np.ndarray:

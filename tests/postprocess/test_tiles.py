@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import printability.postprocess as pp
+import printability.targets as pp_targets
 from printability.errors import InputError
 from printability.motion.tiles import tile_layers
 from printability.postprocess import PostprocessOptions, postprocess_bytes
@@ -76,7 +76,7 @@ def test_planning_in_batches_decides_as_layer_by_layer(prusa_short, monkeypatch)
     data = prusa_short.read_bytes()
     opts = PostprocessOptions(nozzle=ELLIPSE, machine="ttr")
     _, batched = postprocess_bytes(data, options=opts)
-    monkeypatch.setattr(pp, "_BATCH_AREA", 1.0)  # every layer a batch of its own
+    monkeypatch.setattr(pp_targets, "_BATCH_AREA", 1.0)  # every layer a batch of its own
     _, alone = postprocess_bytes(data, options=opts)
     assert [r.index for r in batched.layers] == [r.index for r in alone.layers]
     assert len(batched.layers) > 1
@@ -104,7 +104,7 @@ def test_targets_are_built_a_bounded_number_ahead(workers):
         return i
 
     out = []
-    for value in pp._threaded(build, list(range(40)), workers):
+    for value in pp_targets.threaded(build, list(range(40)), workers):
         with lock:
             assert len(started) - len(out) <= workers + 1
         out.append(value)
@@ -125,7 +125,7 @@ def test_batches_keep_offset_orifices_inside_their_layer(prusa_short, spec, monk
     from printability.motion.check import check_deposition, extrusion_chords
     from printability.nozzle import parse_nozzle
 
-    monkeypatch.setattr(pp, "_TILE_GAP", 1e-3)
+    monkeypatch.setattr(pp_targets, "_TILE_GAP", 1e-3)
     data = prusa_short.read_bytes()
     new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=spec, machine="ttr"))
     assert len(res.layers) > 1
