@@ -36,20 +36,22 @@ from shapely.geometry.base import BaseGeometry
 from printability.errors import InputError
 from printability.geometry import polygons_of
 from printability.machine import Machine
+from printability.motion._plan_kernels import (
+    chain_nearest,
+    merge_pieces,
+    smooth_chain,
+    split_intervals,
+    width_picks,
+)
 from printability.motion.fastfit import (
     EPS,
     _order,
     boundary_grid,
-    chain_nearest,
     covers,
     covers_rings,
     first_fits,
     locator,
-    merge_pieces,
-    smooth_chain,
-    split_intervals,
     swept_kernel,
-    width_picks,
 )
 from printability.nozzle import Nozzle
 

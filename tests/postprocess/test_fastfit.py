@@ -137,7 +137,7 @@ def test_swept_kernel_is_the_numpy_path_to_the_bit(nozzle):
 
 def test_chain_nearest_is_the_python_loop():
     """The compiled chaining picks what the Python loop picked, ties and halves included."""
-    from printability.motion.fastfit import chain_nearest
+    from printability.motion._plan_kernels import chain_nearest
 
     rng = np.random.default_rng(5)
     c1 = np.concatenate([rng.uniform(-720, 720, 3000), np.arange(-450.0, 450.0, 45.0)])
@@ -198,7 +198,7 @@ def test_point_location_along_a_grid_row():
 
 def test_smooth_chain_is_the_python_loop():
     """The compiled smoothing proposals are those of the Python loop, halves included."""
-    from printability.motion.fastfit import smooth_chain
+    from printability.motion._plan_kernels import smooth_chain
 
     rng = np.random.default_rng(6)
     n = 4000
@@ -258,7 +258,7 @@ def test_merge_pieces_is_the_python_loop():
     same orientation, as the loop over lists of tuples joined them."""
     import math
 
-    from printability.motion.fastfit import merge_pieces
+    from printability.motion._plan_kernels import merge_pieces
 
     rng = np.random.default_rng(5)
     n = 3000

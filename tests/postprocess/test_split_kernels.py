@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from printability.motion.fastfit import split_intervals
+from printability.motion._plan_kernels import split_intervals
 
 
 def _intervals_numpy(length, step, ncol):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from printability.motion.fastfit import width_picks
+from printability.motion._plan_kernels import width_picks
 from printability.motion.orientation import _half_turn_distance, width_table
 from printability.nozzle import parse_nozzle
 

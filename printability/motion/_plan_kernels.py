@@ -1,0 +1,221 @@
+"""Compiled steps of the orientation planner (:mod:`printability.motion.orientation`)
+that are not footprint tests: chaining the preferred orientations, picking each planned
+width's relative orientations, listing a split's candidate intervals and merging the
+pieces found.
+
+Angles in degrees; fractions ``t`` of a move in [0, 1]. The footprint tests themselves
+are in :mod:`printability.motion.fastfit`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["chain_nearest", "merge_pieces", "smooth_chain", "split_intervals", "width_picks"]
+
+
+@numba.njit(cache=True)
+def chain_nearest(c1, c2, per, previous):  # pragma: no cover
+    """Per move, of ``c1``, ``c2``, ``c1 + 180``, ``c2 + 180`` the equivalent nearest the last pick.
+
+    The sequential loop of
+    :func:`printability.motion.orientation.preferred_orientations` for an
+    unlimited axis, compiled (a Python loop per move cost more than the rest
+    of the planning); ``np.rint`` rounds half to even like Python's ``round``,
+    so the picks are the same.
+    """
+    n = len(c1)
+    out = np.empty(n)
+    prev = previous
+    for i in range(n):
+        best = 0.0
+        first = True
+        for q in range(4):
+            c = c1[i] if q == 0 else c2[i] if q == 1 else c1[i] + 180.0 if q == 2 \
+                else c2[i] + 180.0
+            near = c + per * np.rint((prev - c) / per)
+            if first or abs(near - prev) < abs(best - prev):
+                best = near
+                first = False
+        out[i] = best
+        prev = best
+    return out
+
+
+@numba.njit(cache=True)
+def smooth_chain(angle, c1, c2, searched, reach, per, previous):  # pragma: no cover
+    """The proposals of :func:`printability.motion.orientation._smooth`, compiled.
+
+    Per move (NaN moves skipped and kept): a searched move's orientation (or any, on
+    a limited axis) unwrapped nearest the last pick; otherwise, of ``c1`` and ``c2``,
+    the equivalent nearest it. ``np.rint`` rounds half to even like Python's
+    ``round``, so the picks are those of the Python loop.
+    """
+    n = len(angle)
+    prop = angle.copy()
+    prev = previous
+    for i in range(n):
+        a = angle[i]
+        if a != a:  # NaN: split or dropped move
+            continue
+        if searched[i] or reach:
+            best = a + per * np.rint((prev - a) / per)
+        else:
+            best = c1[i] + per * np.rint((prev - c1[i]) / per)
+            near = c2[i] + per * np.rint((prev - c2[i]) / per)
+            if abs(near - prev) < abs(best - prev):
+                best = near
+        prop[i] = best
+        prev = best
+    return prop
+
+
+@numba.njit(cache=True)
+def width_picks(w, wtab, beta, dist):  # pragma: no cover
+    """Per planned width, the picks of
+    :func:`printability.motion.orientation.preferred_orientations`, compiled.
+
+    ``b1``: the relative orientation ``beta`` whose width ``wtab`` is nearest ``w`` (the
+    first among equals, as ``np.argmin``); ``b2``: the nearest one more than 2° away from
+    it modulo 180° (``dist``, row per orientation) when at most 1e-4 mm worse, else ``b1``.
+    The same elementwise operations as the numpy rows (``|wtab - w|``, first minimum), so
+    the same picks; no (widths × orientations) array is made.
+    """
+    n = len(w)
+    m = len(wtab)
+    b1 = np.empty(n)
+    b2 = np.empty(n)
+    for i in range(n):
+        j1 = 0
+        e1 = abs(wtab[0] - w[i])
+        for j in range(1, m):
+            e = abs(wtab[j] - w[i])
+            if e < e1:
+                e1 = e
+                j1 = j
+        j2 = 0
+        e2 = abs(wtab[0] - w[i]) if dist[j1, 0] > 2.0 else np.inf
+        for j in range(1, m):
+            e = abs(wtab[j] - w[i]) if dist[j1, j] > 2.0 else np.inf
+            if e < e2:
+                e2 = e
+                j2 = j
+        b1[i] = beta[j1]
+        b2[i] = beta[j2] if e2 <= e1 + 1e-4 else beta[j1]
+    return b1, b2
+
+
+@numba.njit(cache=True)
+def split_intervals(length, step):  # pragma: no cover
+    """The candidate intervals of :func:`printability.motion.orientation._split_many`.
+
+    A move longer than ``2·step`` is trimmed by d = step/length, 2d, 4d… (while d < 1/2)
+    at the start (``[d, 1]``), the end (``[0, 1 - d]``) or both (``[d, 1 - d]``), in that
+    order per d; its intervals are listed by decreasing span, then in that order (the
+    order a stable sort by span over the generated intervals gives). Returns per interval
+    its move, start and end, then the moves that have intervals (ascending) and where
+    each one's intervals start (CSR, one more entry than moves).
+    """
+    n = len(length)
+    levels = np.zeros(n, np.int64)
+    total = 0
+    for i in range(n):
+        if length[i] > 2 * step:
+            d = step / length[i]
+            while d < 0.5:
+                levels[i] += 1
+                d = d * 2.0
+            total += 3 * levels[i]
+    iv_mv = np.empty(total, np.int64)
+    iv_t0 = np.empty(total)
+    iv_t1 = np.empty(total)
+    span = np.empty(total)
+    moves = np.empty(n, np.int64)
+    ivpos = np.zeros(n + 1, np.int64)
+    k = 0
+    nm = 0
+    for i in range(n):
+        if levels[i] == 0:
+            continue
+        lo = k
+        d = step / length[i]
+        for _ in range(levels[i]):
+            for kind in range(3):
+                t0 = 0.0 if kind == 1 else d
+                t1 = 1.0 if kind == 0 else 1.0 - d
+                s = t1 - t0
+                # insertion, after every interval at least as long (stable)
+                j = k
+                while j > lo and span[j - 1] < s:
+                    iv_t0[j] = iv_t0[j - 1]
+                    iv_t1[j] = iv_t1[j - 1]
+                    span[j] = span[j - 1]
+                    j -= 1
+                iv_t0[j] = t0
+                iv_t1[j] = t1
+                span[j] = s
+                iv_mv[k] = i
+                k += 1
+            d = d * 2.0
+        moves[nm] = i
+        nm += 1
+        ivpos[nm] = k
+    return iv_mv, iv_t0, iv_t1, moves[:nm], ivpos[:nm + 1]
+
+
+@numba.njit(cache=True)
+def _isclose(a, b):  # pragma: no cover
+    """``math.isclose(a, b)`` (relative tolerance 1e-9, no absolute one), as CPython decides it."""
+    if a == b:
+        return True
+    if math.isinf(a) or math.isinf(b):
+        return False
+    diff = abs(b - a)
+    return diff <= abs(1e-9 * b) or diff <= abs(1e-9 * a)
+
+
+@numba.njit(cache=True)
+def merge_pieces(move, t0, t1, angle):  # pragma: no cover
+    """Pieces sorted by move, then start (the order given among equals), adjacent ones joined.
+
+    Two pieces of a move are joined when the second starts where the first (as
+    joined so far) ends and has its orientation, both up to ``math.isclose``:
+    the loop :func:`printability.motion.orientation._split_many` ran per move
+    on lists of tuples, compiled. Returns the joined pieces' move, start, end
+    and orientation.
+    """
+    n = len(move)
+    order = np.argsort(move, kind="mergesort")  # stable
+    # then by start within each move (stable insertion: a move has few pieces)
+    lo = 0
+    for r in range(1, n + 1):
+        if r < n and move[order[r]] == move[order[lo]]:
+            continue
+        for x in range(lo + 1, r):
+            i = order[x]
+            j = x
+            while j > lo and t0[order[j - 1]] > t0[i]:
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = i
+        lo = r
+    om = np.empty(n, np.int64)
+    oa = np.empty(n)
+    ob = np.empty(n)
+    op = np.empty(n)
+    k = 0
+    for r in range(n):
+        i = order[r]
+        if k > 0 and om[k - 1] == move[i] and _isclose(ob[k - 1], t0[i]) \
+                and _isclose(op[k - 1], angle[i]):
+            ob[k - 1] = t1[i]
+        else:
+            om[k] = move[i]
+            oa[k] = t0[i]
+            ob[k] = t1[i]
+            op[k] = angle[i]
+            k += 1
+    return om[:k], oa[:k], ob[:k], op[:k]
