@@ -42,11 +42,8 @@ from printability import __version__
 from printability.errors import InputError, PrintabilityOSError
 from printability.layers import LayerStack
 from printability.machine import Machine, parse_machine
-from printability.motion.orientation import (
-    OrientationOptions,
-    grown_target,
-    plan_orientations,
-)
+from printability.motion.footprints import grown_target
+from printability.motion.orientation import OrientationOptions, plan_orientations
 from printability.motion.toolpaths import infill_lines, order_groups, perimeter_loops
 from printability.nozzle import Nozzle, parse_nozzle
 from printability.options import BEAD_MODELS, FEED_POLICIES

@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from printability.motion.beadunion import INNER, bead_union
-from printability.motion.orientation import grown_target
+from printability.motion.footprints import grown_target
 from printability.motion.tiles import tile_layers
 from printability.settings import Settings
 from printability.sources.gcode import layer_beads, layer_regions

@@ -1,6 +1,6 @@
 """Exact shortcut for "does this swept footprint lie inside the target?".
 
-:func:`printability.motion.orientation.fits` asks ``shapely.covers(G, P)``
+:func:`printability.motion.footprints.fits` asks ``shapely.covers(G, P)``
 for hundreds of thousands of convex swept polygons P (64 vertices each) per
 part. GEOS answers each with a general overlay-style test (noding P's ring
 against ∂G); for a convex P known as an intersection of half-planes
@@ -690,7 +690,7 @@ def swept_kernel(kind, a, b, cx, cy, rc, rs, p0, p1, cn, sn, cb, sb, c0, s0, c1,
     """Half-plane offsets ``h`` and ring of an ellipse (kind 0) or rectangle (kind 1) swept.
 
     The same arithmetic, in the same order, as the numpy path of
-    :func:`printability.motion.orientation.swept_rings` (so the same rings to
+    :func:`printability.motion.footprints.swept_rings` (so the same rings to
     the last bit), fused into one pass: numpy makes a dozen (n, 64)
     temporaries per call, which cost more than the arithmetic. ``c1``/``s1``
     (the end orientation, turning moves) are used when ``k`` is non-empty,

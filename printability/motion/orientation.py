@@ -8,6 +8,7 @@ region lies inside the layer target G grown by ``tolerance`` (equivalently:
 the segment lies in the motion restriction P_φ = G ⊖ R(φ)A⁰, up to the
 tolerance). Footprints are tested with their *outer* polygonal
 approximation, so curved orifices are never under-estimated.
+The footprints and that test are :mod:`printability.motion.footprints`.
 
 Search order, cheapest first (shapely's vectorised predicates on a prepared
 G):
@@ -26,16 +27,13 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import shapely
 from shapely.geometry.base import BaseGeometry
 
-from printability.errors import InputError
-from printability.geometry import polygons_of
 from printability.machine import Machine
+from printability.motion import footprints as fp
 from printability.motion._plan_kernels import (
     chain_nearest,
     merge_pieces,
@@ -43,15 +41,12 @@ from printability.motion._plan_kernels import (
     split_intervals,
     width_picks,
 )
-from printability.motion.fastfit import (
-    EPS,
-    _order,
-    boundary_grid,
-    covers,
-    covers_rings,
-    first_fits,
-    locator,
-    swept_kernel,
+from printability.motion.footprints import (
+    ConvexPiece,
+    convex_pieces,
+    fits,
+    swept_footprints,
+    swept_rings,
 )
 from printability.nozzle import Nozzle
 
@@ -148,346 +143,6 @@ class Plan:
             kept = sum(p.t1 - p.t0 for p in pieces)
             total += float(lengths[i]) * max(0.0, 1.0 - kept)
         return total
-
-
-@dataclass(frozen=True)
-class ConvexPiece:
-    """A convex part of an orifice in the nozzle frame (mounting angle included).
-
-    ``kind`` is ``"ellipse"`` (circles too), ``"rect"`` or ``"poly"``; ``a``,
-    ``b`` semi-axes (mm), ``center`` (mm) and ``rotation`` (degrees) place
-    the first two; ``vertices`` (k, 2) the last.
-    """
-
-    kind: str
-    a: float = 0.0
-    b: float = 0.0
-    center: tuple[float, float] = (0.0, 0.0)
-    rotation: float = 0.0
-    vertices: np.ndarray | None = None
-
-    def support(self, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
-        """Support function h(u) = max over the piece of u·x, for unit vectors (ux, uy)."""
-        cx, cy = self.center
-        base = ux * cx + uy * cy
-        if self.kind in ("ellipse", "rect"):
-            r = math.radians(self.rotation)
-            c, s = math.cos(r), math.sin(r)
-            vx = c * ux + s * uy  # u in the orifice's own axes
-            vy = -s * ux + c * uy
-            if self.kind == "ellipse":
-                return base + np.sqrt((self.a * vx) ** 2 + (self.b * vy) ** 2)
-            return base + self.a * np.abs(vx) + self.b * np.abs(vy)
-        v = self.vertices
-        return np.max(ux[..., None] * v[:, 0] + uy[..., None] * v[:, 1], axis=-1)
-
-
-def convex_pieces(nozzle: Nozzle, *, quad_segs: int = 16) -> list[ConvexPiece]:
-    """Convex pieces covering the orifices of a nozzle, exactly.
-
-    Circles, ellipses and rectangles are one piece each (their support
-    function is exact); a convex polygon is one piece; a non-convex polygon
-    is triangulated (constrained Delaunay). ``quad_segs`` is unused (kept for
-    symmetry with the outline functions).
-    """
-    del quad_segs
-    out: list[ConvexPiece] = []
-    m = nozzle.mount_angle
-    rm = math.radians(m)
-    cm, sm = math.cos(rm), math.sin(rm)
-    for f in nozzle.footprints:
-        cx, cy = f.center
-        center = (cm * cx - sm * cy, sm * cx + cm * cy)
-        if f.kind in ("circle", "ellipse"):
-            out.append(ConvexPiece("ellipse", f.a, f.b, center, f.rotation + m))
-            continue
-        if f.kind == "rect":
-            out.append(ConvexPiece("rect", f.a, f.b, center, f.rotation + m))
-            continue
-        poly = f.polygon()
-        if m:
-            poly = shapely.affinity.rotate(poly, m, origin=(0.0, 0.0))
-        if poly.convex_hull.area - poly.area <= 1e-12 * max(poly.area, 1.0):
-            out.append(ConvexPiece("poly", vertices=np.asarray(poly.exterior.coords)[:-1]))
-            continue
-        for tri in polygons_of(shapely.constrained_delaunay_triangles(poly)):
-            out.append(ConvexPiece("poly", vertices=np.asarray(tri.exterior.coords)[:-1]))
-    return out
-
-
-def swept_footprints(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.ndarray,
-                     *, angle_end: np.ndarray | None = None, scale: np.ndarray | None = None,
-                     directions: int = 64) -> np.ndarray:
-    """Outer polygons of a convex piece swept from p0 to p1.
-
-    The piece is turned by ``angle`` (and, when ``angle_end`` is given, turns
-    linearly to it during the move) and scaled by ``scale`` about the nozzle
-    origin. The polygon is the intersection of the ``directions`` half-planes
-    tangent to the swept set, so it *contains* the swept set (it exceeds it by
-    at most ρ·(1/cos(π/directions) − 1) for a curved piece at radius ρ: 0.05 %).
-    A piece turning from φa to φb is bounded by k·hull(R(φa)A ∪ R(φb)A),
-    k = 1/cos(|φb − φa|/2): every point of a turning orifice stays on an arc
-    whose chord lies in that hull and the arc bulges outwards by at most that
-    factor.
-
-    Returns
-    -------
-    ndarray of shapely Polygons, shape (n,).
-    """
-    return shapely.polygons(swept_rings(piece, p0, p1, angle, angle_end=angle_end, scale=scale,
-                                        directions=directions))
-
-
-def swept_rings(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.ndarray,
-                *, angle_end: np.ndarray | None = None, scale: np.ndarray | None = None,
-                directions: int = 64) -> np.ndarray:
-    """The closed rings of :func:`swept_footprints` as coordinates, shape (n, directions + 1, 2)."""
-    return _swept(piece, p0, p1, angle, angle_end=angle_end, scale=scale,
-                  directions=directions)[0]
-
-
-_EMPTY = np.zeros(0)
-
-
-def _piece_params(piece: ConvexPiece) -> tuple[int, float, float, float, float, float, float]:
-    """Kind (0 ellipse, 1 rectangle), semi-axes, centre and rotation cos/sin of a piece."""
-    r = math.radians(piece.rotation)
-    return (0 if piece.kind == "ellipse" else 1, float(piece.a), float(piece.b),
-            float(piece.center[0]), float(piece.center[1]), math.cos(r), math.sin(r))
-
-
-def _angle_trig(angle, angle_end, n: int):
-    """cos/sin of the orientations (and of the end ones, with the bulge factor k), per row.
-
-    Numpy's elementwise results depend on the values only, so rows computed in
-    any batch are the same bits: the fused tests and the rings agree.
-    """
-    phi = np.deg2rad(np.asarray(angle, dtype=float)).reshape(n)
-    if angle_end is None:
-        return np.cos(phi), np.sin(phi), _EMPTY, _EMPTY, _EMPTY
-    phi1 = np.deg2rad(np.asarray(angle_end, dtype=float)).reshape(n)
-    d = np.abs(np.asarray(angle_end, dtype=float) - angle)
-    k = 1.0 / np.cos(np.deg2rad(np.minimum(d, 120.0)) / 2.0)
-    return np.cos(phi), np.sin(phi), np.cos(phi1), np.sin(phi1), np.ascontiguousarray(k)
-
-
-def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
-           kernel=True):
-    """Rings and their half-planes: ring (n, d + 1, 2), and u = (cu, su), h of shape (n, d).
-
-    The swept set lies in every half-plane ``cu·x + su·y ≤ h``; the ring's vertices are
-    where adjacent boundary lines cross. ``kernel=False`` forces the numpy path (the
-    kernel's reference in the tests).
-    """
-    n = len(p0)
-    # The directions are turned so that two of them are normal to the move:
-    # the long sides of the swept set are then exact, not cut by a spike.
-    normal = np.arctan2(p1[:, 0] - p0[:, 0], -(p1[:, 1] - p0[:, 1]))
-    base = np.arange(directions) * (2 * math.pi / directions)
-    det = math.sin(2 * math.pi / directions)
-    if kernel and piece.kind in ("ellipse", "rect"):
-        c0, s0, c1, s1, k = _angle_trig(angle, angle_end, n)
-        sc = _EMPTY if scale is None else np.broadcast_to(np.asarray(scale, dtype=float),
-                                                          (n,)).copy()
-        cu = np.empty((n, directions))
-        su = np.empty((n, directions))
-        h = np.empty((n, directions))
-        ring = np.empty((n, directions + 1, 2))
-        kind, a, b, cx, cy, rc, rs = _piece_params(piece)
-        swept_kernel(kind, a, b, cx, cy, rc, rs,
-                     np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
-                     np.cos(normal), np.sin(normal), np.cos(base), np.sin(base),
-                     c0, s0, c1, s1, k, sc, det, cu, su, h, ring)
-        return ring, cu, su, h
-    cn, sn = np.cos(normal)[:, None], np.sin(normal)[:, None]
-    cb, sb = np.cos(base)[None, :], np.sin(base)[None, :]
-    cu = cn * cb - sn * sb  # cos(normal + base), without a cos per element
-    su = sn * cb + cn * sb
-
-    def h_at(phi: np.ndarray) -> np.ndarray:
-        r = np.deg2rad(phi)[:, None]
-        c, s = np.cos(r), np.sin(r)
-        # u expressed in the nozzle frame: R(-phi) u
-        return piece.support(c * cu + s * su, -s * cu + c * su)
-
-    h = h_at(np.asarray(angle, dtype=float))
-    if angle_end is not None:
-        d = np.abs(np.asarray(angle_end, dtype=float) - angle)
-        h = np.maximum(h, h_at(np.asarray(angle_end, dtype=float)))
-        k = 1.0 / np.cos(np.deg2rad(np.minimum(d, 120.0)) / 2.0)
-        h = h * k[:, None]
-    if scale is not None:
-        h = h * np.asarray(scale, dtype=float)[:, None]
-    h = h + np.maximum(cu * p0[:, :1] + su * p0[:, 1:2], cu * p1[:, :1] + su * p1[:, 1:2])
-    # vertex j is where the tangent lines j and j+1 cross; the ring closes on itself
-    hh = np.concatenate([h, h[:, :1]], axis=1)
-    cc = np.concatenate([cu, cu[:, :1]], axis=1)
-    ss = np.concatenate([su, su[:, :1]], axis=1)
-    ring = np.empty((n, directions + 1, 2))
-    ring[:, :-1, 0] = (hh[:, :-1] * ss[:, 1:] - hh[:, 1:] * ss[:, :-1]) / det
-    ring[:, :-1, 1] = (cc[:, :-1] * hh[:, 1:] - cc[:, 1:] * hh[:, :-1]) / det
-    ring[:, -1] = ring[:, 0]
-    return ring, cu, su, h
-
-
-def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1: np.ndarray,
-         angle: np.ndarray, *, angle_end: np.ndarray | None = None,
-         scale: np.ndarray | None = None, fast: bool = True) -> np.ndarray:
-    """Whether each move's swept footprint lies inside ``target`` (prepared, grown).
-
-    ``fast`` decides what it can with the exact tests of
-    :func:`printability.motion.fastfit.first_fits` (ellipses and rectangles:
-    sweep, edge test and point location fused, nothing stored per footprint)
-    or :func:`printability.motion.fastfit.covers_rings` (other pieces) and
-    leaves only the rest to ``shapely.covers``; ``fast=False`` tests every
-    footprint with ``shapely.covers`` (the reference the fast path must agree
-    with).
-
-    Returns a boolean array of shape (n,).
-    """
-    n = len(p0)
-    if n == 0:
-        return np.ones(0, dtype=bool)
-    if fast and _fused(pieces):
-        every = np.arange(n)
-        return _first_fit(target, pieces, p0, p1, scale, every, angle, angle_end, every,
-                          every + 1) >= 0
-    return _fits_rings(target, pieces, p0, p1, angle, angle_end=angle_end, scale=scale,
-                       fast=fast)
-
-
-def _fits_rings(target, pieces, p0, p1, angle, *, angle_end=None, scale=None, fast=True):
-    """:func:`fits` through the rings: any convex piece, and the reference of the fused path."""
-    n = len(p0)
-    ok = np.ones(n, dtype=bool)
-    for piece in pieces:
-        idx = np.flatnonzero(ok)
-        if idx.size == 0:
-            break
-        rings, cu, su, h = _swept(piece, p0[idx], p1[idx], np.asarray(angle)[idx],
-                                  angle_end=None if angle_end is None else angle_end[idx],
-                                  scale=None if scale is None else scale[idx])
-        if fast:
-            ok[idx] = covers_rings(target, rings, cu, su, h)
-        else:
-            ok[idx] = covers(target, shapely.polygons(rings))
-    return ok
-
-
-def _first_fit_reference(target, pieces, p0, p1, scale, seg, angle, gpos, gend,
-                         fast=False) -> np.ndarray:
-    """:func:`_first_fit` the slow way: every candidate through the rings of :func:`fits`."""
-    ok = _fits_rings(target, pieces, p0[seg], p1[seg], angle,
-                     scale=None if scale is None else scale[seg], fast=fast)
-    out = np.full(len(gpos), -1, dtype=np.int64)
-    for g, (lo, hi) in enumerate(zip(gpos.tolist(), gend.tolist(), strict=True)):
-        hit = np.flatnonzero(ok[lo:hi])
-        if hit.size:
-            out[g] = lo + hit[0]
-    return out
-
-
-@functools.lru_cache(maxsize=8)
-def _base_directions(directions: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """cos, sin of the base directions (as :func:`_swept` computes them) and det."""
-    base = np.arange(directions) * (2 * math.pi / directions)
-    cb, sb = np.cos(base), np.sin(base)
-    cb.setflags(write=False)
-    sb.setflags(write=False)
-    return cb, sb, math.sin(2 * math.pi / directions)
-
-
-@functools.lru_cache(maxsize=32)
-def _pieces_arrays(pieces: tuple[ConvexPiece, ...]) -> tuple[np.ndarray, ...]:
-    """:func:`_piece_params` of every piece, as arrays (kind, a, b, cx, cy, rc, rs)."""
-    params = [_piece_params(p) for p in pieces]
-    out = (np.array([q[0] for q in params], dtype=np.int64),
-           *(np.array([q[j] for q in params], dtype=float) for j in range(1, 7)))
-    for v in out:
-        v.setflags(write=False)
-    return out
-
-
-def _fused(pieces: Sequence[ConvexPiece]) -> bool:
-    """Whether :func:`first_fits` sweeps these pieces (ellipses and rectangles)."""
-    return all(p.kind in ("ellipse", "rect") for p in pieces)
-
-
-def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
-               directions: int = 64, *, gseg=None, trig=None) -> np.ndarray:
-    """Per group of candidates, the index of the first that fits (-1: none).
-
-    Candidate ``q`` is segment ``seg[q]`` (of ``p0``, ``p1``, ``scale``) swept at
-    ``angle[q]`` (turning to ``angle_end[q]``); group ``g`` holds candidates
-    ``gpos[g] … gend[g] - 1``, tried in order. With ``gseg``, every candidate of
-    group ``g`` is swept along segment ``gseg[g]`` instead (groups may share
-    candidates); ``trig`` is ``(cos, sin)`` of the angles in radians when already
-    known. The answer per candidate is :func:`fits`'s: footprints ∂G grazes go
-    to :func:`covers_rings` with the rings of the same half-planes, and the group
-    resumes after a refusal.
-    """
-    ngroups = len(gpos)
-    result = np.full(ngroups, -1, dtype=np.int64)
-    if ngroups == 0:
-        return result
-    p0 = np.ascontiguousarray(p0, dtype=float)
-    p1 = np.ascontiguousarray(p1, dtype=float)
-    normal = np.arctan2(p1[:, 0] - p0[:, 0], -(p1[:, 1] - p0[:, 1]))
-    cn, sn = np.cos(normal), np.sin(normal)
-    cb, sb, det = _base_directions(directions)
-    if trig is None:
-        c0, s0, c1, s1, k = _angle_trig(angle, angle_end, len(angle))
-    else:
-        c0, s0 = trig
-        c1 = s1 = k = _EMPTY
-    sc = _EMPTY if scale is None else np.ascontiguousarray(
-        np.broadcast_to(np.asarray(scale, dtype=float), (len(p0),)))
-    kind, pa, pb, pcx, pcy, prc, prs = _pieces_arrays(tuple(pieces))
-    if gseg is None:
-        gseg = np.zeros(0, dtype=np.int64)
-        seg = np.ascontiguousarray(seg, dtype=np.int64)
-    else:
-        gseg = np.ascontiguousarray(gseg, dtype=np.int64)
-        seg = np.zeros(0, dtype=np.int64)
-    grid = boundary_grid(target)
-    loc = locator(target)
-    gpos = np.array(gpos, dtype=np.int64)
-    gend = np.ascontiguousarray(gend, dtype=np.int64)
-    order = _order(directions)
-    groups = np.arange(ngroups)
-    while groups.size:
-        out_idx = np.empty(groups.size, dtype=np.int64)
-        out_state = np.empty(groups.size, dtype=np.int8)
-        first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, sc, seg,
-                   gseg[groups] if len(gseg) else gseg, c0, s0, c1, s1, k, gpos[groups],
-                   gend[groups], cb, sb, det, *grid, *loc, EPS, order, out_idx, out_state)
-        fit = out_state == 1
-        result[groups[fit]] = out_idx[fit]
-        und = np.flatnonzero(out_state == -1)
-        if und.size == 0:
-            break
-        # ∂G grazes these footprints: the rings of the same half-planes, decided exactly
-        q = out_idx[und]
-        m = gseg[groups[und]] if len(gseg) else seg[q]
-        ok = np.ones(q.size, dtype=bool)
-        for piece in pieces:
-            kp, a, b, cx, cy, rc, rs = _piece_params(piece)
-            nq = q.size
-            cu = np.empty((nq, directions))
-            su = np.empty((nq, directions))
-            h = np.empty((nq, directions))
-            ring = np.empty((nq, directions + 1, 2))
-            turning = len(k) > 0
-            swept_kernel(kp, a, b, cx, cy, rc, rs, p0[m], p1[m], cn[m], sn[m], cb, sb, c0[q],
-                         s0[q], c1[q] if turning else _EMPTY, s1[q] if turning else _EMPTY,
-                         k[q] if turning else _EMPTY, sc[m] if len(sc) else _EMPTY, det, cu,
-                         su, h, ring)
-            ok &= covers_rings(target, ring, cu, su, h)
-        result[groups[und[ok]]] = q[ok]
-        rest = und[~ok]
-        gpos[groups[rest]] = q[~ok] + 1
-        groups = groups[rest]
-    return result
 
 
 @functools.lru_cache(maxsize=32)
@@ -660,8 +315,8 @@ def plan_orientations(
     n = len(p0)
     widths = np.broadcast_to(np.asarray(widths, dtype=float), (n,))
     if prepared_target is None:
-        prepared_target = grown_target(target, options.tolerance)
-    pieces = convex_pieces(nozzle)
+        prepared_target = fp.grown_target(target, options.tolerance)
+    pieces = fp.convex_pieces(nozzle)
     period = nozzle.symmetry_period
     turns = machine.kind == "ttr" and period != 0.0
     per = period if turns else 360.0
@@ -676,7 +331,7 @@ def plan_orientations(
     else:
         angle = np.zeros(n)
 
-    ok = fits(prepared_target, pieces, p0, p1, angle, scale=scale)
+    ok = fp.fits(prepared_target, pieces, p0, p1, angle, scale=scale)
     result_pieces: dict[int, list[OrientedPiece]] = {}
     bad = np.flatnonzero(~ok)
     beta, wtab = width_table(nozzle)
@@ -718,7 +373,7 @@ def plan_orientations(
         cand = np.flatnonzero(np.asarray(chained, bool) & np.isfinite(step) & (step > 1e-9)
                               & (step <= options.fold_max))
         if cand.size:
-            fold[cand] = fits(prepared_target, pieces, p0[cand], p1[cand], prev_a[cand],
+            fold[cand] = fp.fits(prepared_target, pieces, p0[cand], p1[cand], prev_a[cand],
                               angle_end=angle[cand])
     width = np.full(n, np.nan)
     good = ~np.isnan(angle)
@@ -747,21 +402,12 @@ def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scal
     test = np.flatnonzero(np.isfinite(prop) & (diff > 1e-6))
     out = np.where(np.isfinite(prop), prop, angle)
     if test.size:
-        ok = fits(target, pieces, p0[test], p1[test], prop[test],
+        ok = fp.fits(target, pieces, p0[test], p1[test], prop[test],
                   scale=None if scale is None else scale[test])
         keep = test[~ok]
         # a rejected proposal keeps its old orientation, unwrapped near its neighbour
         out[keep] = angle[keep]
     return out
-
-
-def grown_target(target: BaseGeometry, tolerance: float) -> BaseGeometry:
-    """G grown by ``tolerance`` (mm; negative shrinks it) and prepared for repeated predicates."""
-    if target is None or target.is_empty:
-        raise InputError("the layer target is empty: there is nothing a move could fit in")
-    g = target.buffer(tolerance, quad_segs=8) if tolerance != 0 else target
-    shapely.prepare(g)
-    return g
 
 
 def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
@@ -821,13 +467,13 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
                         (min(8, ncand), ncand)):
         if stop > start:
             count = np.where(lim > start, stop, count)
-    if fast and _fused(pieces):
+    if fast and fp._fused(pieces):
         # the rounds only bounded the wasted tests: the first candidate that fits, in
         # order, is the one they find, and the kernel stops there
         phis = np.take_along_axis(near, order, axis=1)[np.arange(ncand)[None, :]
                                                        < count[:, None]]
         gend = np.cumsum(count)
-        first = _first_fit(target, pieces, p0, p1, scale, np.repeat(np.arange(k), count),
+        first = fp._first_fit(target, pieces, p0, p1, scale, np.repeat(np.arange(k), count),
                            phis, None, gend - count, gend)
         found = first >= 0
         best[found] = phis[first[found]]
@@ -839,7 +485,7 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
         cols = order[todo, start:stop]  # (t, s)
         rows = np.repeat(todo, cols.shape[1])
         phis = near[rows, cols.ravel()]
-        ok = fits(target, pieces, p0[rows], p1[rows], phis,
+        ok = fp.fits(target, pieces, p0[rows], p1[rows], phis,
                   scale=None if scale is None else scale[rows], fast=fast).reshape(cols.shape)
         hit = ok.any(axis=1)
         first = np.argmax(ok, axis=1)
@@ -892,14 +538,14 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         gpos = ivpos[:-1] * ncol
         gend = ivpos[1:] * ncol
         sc_iv = None if scale is None else scale[iv_mv]
-        if fast and _fused(pieces):
+        if fast and fp._fused(pieces):
             # cos/sin of each move's two orientations, once, gathered per candidate
             rad = np.deg2rad(top)
             trig = (np.cos(rad)[iv_mv].reshape(-1), np.sin(rad)[iv_mv].reshape(-1))
-            first = _first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, gpos, gend,
+            first = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, gpos, gend,
                                trig=trig)
         else:
-            first = _first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
+            first = fp._first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
                                          gend, fast=fast)
         hit = first >= 0
         j = first[hit]
@@ -928,9 +574,9 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     while idx.size:
         q0 = a[idx] + ta[:, None] * ba[idx]
         q1 = a[idx] + tb[:, None] * ba[idx]
-        if fast and _fused(pieces) and ncand:
+        if fast and fp._fused(pieces) and ncand:
             # no limit: a part tries all its move's candidates, in order
-            first = _first_fit(target, pieces, q0, q1, None if scale is None else scale[idx],
+            first = fp._first_fit(target, pieces, q0, q1, None if scale is None else scale[idx],
                                None, near_ord, None, idx * ncand, idx * ncand + ncand,
                                gseg=np.arange(idx.size), trig=trig)
             found = first >= 0

@@ -122,7 +122,7 @@ def test_empty_and_bad_input():
 def test_the_fused_search_decides_as_geos_on_a_bead_union(nozzle):
     """``fits`` (fused kernel; points located in the polygons, also for an offset orifice
     whose footprint need not hold its path) against GEOS's covers on the same union."""
-    from printability.motion.orientation import convex_pieces, fits
+    from printability.motion.footprints import convex_pieces, fits
     from printability.nozzle import parse_nozzle
 
     rng = np.random.default_rng(7)

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import shapely
 
-import printability.motion.orientation as orientation
+import printability.motion.footprints as footprints
 from printability.motion.fastfit import covers, covers_rings
-from printability.motion.orientation import _swept, convex_pieces, grown_target
+from printability.motion.footprints import _swept, convex_pieces, grown_target
 from printability.nozzle import parse_nozzle
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 
@@ -34,7 +34,7 @@ def test_fast_and_shapely_agree_move_by_move_on_real_files(request, monkeypatch,
     data = request.getfixturevalue(fixture).read_bytes()
     opts = PostprocessOptions(nozzle=nozzle, machine="ttr")
     calls = {"n": 0, "moves": 0, "fit": 0}
-    first_fit = orientation._first_fit
+    first_fit = footprints._first_fit
 
     def checked(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend, *args,
                 gseg=None, trig=None, **kw):
@@ -47,7 +47,7 @@ def test_fast_and_shapely_agree_move_by_move_on_real_files(request, monkeypatch,
         q = np.concatenate(tried) if tried else np.zeros(0, dtype=np.int64)
         g = np.repeat(np.arange(len(tried)), [t.size for t in tried])
         m = np.asarray(gseg)[g] if gseg is not None else np.asarray(seg)[q]
-        ref = orientation._fits_rings(
+        ref = footprints._fits_rings(
             target, pieces, p0[m], p1[m], np.asarray(angle)[q],
             angle_end=None if angle_end is None else np.asarray(angle_end)[q],
             scale=None if scale is None else np.asarray(scale)[m], fast=False)
@@ -58,14 +58,14 @@ def test_fast_and_shapely_agree_move_by_move_on_real_files(request, monkeypatch,
         calls["fit"] += int(ref.sum())
         return first
 
-    monkeypatch.setattr(orientation, "_first_fit", checked)
+    monkeypatch.setattr(footprints, "_first_fit", checked)
     new_fast, res_fast = postprocess_bytes(data, options=opts)
     # both answers occur: the test is not vacuous
     assert calls["fit"] > 0 and calls["moves"] - calls["fit"] > 0
     # the reference: every candidate of every round through shapely.covers (the search
     # before the fused kernel), which must plan the same
-    monkeypatch.setattr(orientation, "_fused", lambda pieces: False)
-    monkeypatch.setattr(orientation, "covers_rings", _reference)
+    monkeypatch.setattr(footprints, "_fused", lambda pieces: False)
+    monkeypatch.setattr(footprints, "covers_rings", _reference)
     new_slow, res_slow = postprocess_bytes(data, options=opts)
     assert new_fast == new_slow
     assert (res_fast.split_moves, res_fast.dropped_moves) == \
@@ -172,8 +172,8 @@ def test_fused_fits_is_shapely_on_random_targets(nozzle, seed):
     scale = rng.uniform(0.3, 1.0, n)
     pieces = convex_pieces(parse_nozzle(nozzle))
     for kw in ({}, {"angle_end": end}, {"scale": scale}):
-        fast = orientation.fits(target, pieces, p0, p1, angle, **kw)
-        slow = orientation.fits(target, pieces, p0, p1, angle, fast=False, **kw)
+        fast = footprints.fits(target, pieces, p0, p1, angle, **kw)
+        slow = footprints.fits(target, pieces, p0, p1, angle, fast=False, **kw)
         np.testing.assert_array_equal(fast, slow)
         assert fast.any() and not fast.all()
 
@@ -191,8 +191,8 @@ def test_point_location_along_a_grid_row():
         for dx in (0.0, 0.05):
             p1 = p0 + np.array([dx, 0.0])
             angle = np.full(x.size, 90.0)
-            fast = orientation.fits(target, pieces, p0, p1, angle)
-            slow = orientation.fits(target, pieces, p0, p1, angle, fast=False)
+            fast = footprints.fits(target, pieces, p0, p1, angle)
+            slow = footprints.fits(target, pieces, p0, p1, angle, fast=False)
             np.testing.assert_array_equal(fast, slow)
 
 
@@ -245,9 +245,9 @@ def test_first_fit_of_groups_is_shapely_on_random_targets(nozzle, seed):
     gpos = np.arange(n) * per
     pieces = convex_pieces(parse_nozzle(nozzle))
     for scale in (None, rng.uniform(0.3, 1.0, n)):
-        fast = orientation._first_fit(target, pieces, p0, p1, scale, seg, angle, None, gpos,
+        fast = footprints._first_fit(target, pieces, p0, p1, scale, seg, angle, None, gpos,
                                       gpos + per)
-        slow = orientation._first_fit_reference(target, pieces, p0, p1, scale, seg, angle, gpos,
+        slow = footprints._first_fit_reference(target, pieces, p0, p1, scale, seg, angle, gpos,
                                                 gpos + per)
         np.testing.assert_array_equal(fast, slow)
         assert (fast >= 0).any() and (fast < 0).any()
@@ -293,7 +293,7 @@ def test_deep_in_sweep_only_where_the_edge_enters_the_footprint(nozzle):
 
     rng = np.random.default_rng(3)
     (piece,) = convex_pieces(parse_nozzle(nozzle))
-    kind, a, b, cx, cy, rc, rs = orientation._piece_params(piece)
+    kind, a, b, cx, cy, rc, rs = footprints._piece_params(piece)
     n = 2000
     p0 = rng.uniform(-1, 1, (n, 2))
     p1 = p0 + rng.normal(0, 0.5, (n, 2))
@@ -301,7 +301,7 @@ def test_deep_in_sweep_only_where_the_edge_enters_the_footprint(nozzle):
     scale = rng.uniform(0.3, 1.0, n)
     e0 = rng.uniform(-1.5, 1.5, (n, 2))
     e1 = e0 + rng.normal(0, 0.3, (n, 2))
-    rings = orientation.swept_rings(piece, p0, p1, angle, scale=scale)
+    rings = footprints.swept_rings(piece, p0, p1, angle, scale=scale)
     deep = 0
     for i in range(n):
         c, s = math.cos(math.radians(angle[i])), math.sin(math.radians(angle[i]))
