@@ -5,17 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
-
-def first_layers(path: Path, n: int, marker: bytes = b";LAYER_CHANGE") -> bytes:
-    """The file up to (not including) its (n+1)-th layer marker: a valid, shorter G-code."""
-    data = path.read_bytes()
-    pos = -1
-    for _ in range(n + 1):
-        pos = data.find(b"\n" + marker, pos + 1)
-        if pos < 0:
-            return data
-    return data[: pos + 1]
+from pp_helpers import first_layers
 
 
 @pytest.fixture(scope="session")

@@ -5,11 +5,23 @@ from __future__ import annotations
 import bisect
 import re
 from collections import defaultdict
+from pathlib import Path
 
-__all__ = ["geos_targets", "lines_not_kept"]
+__all__ = ["first_layers", "geos_targets", "lines_not_kept"]
 
 _C_WORD = re.compile(rb" C-?[0-9.]+")
 _INSERTED = re.compile(rb"^(G92 E-?[0-9.]+|G1 C-?[0-9.]+|; printability.*)\r?\n?$")
+
+
+def first_layers(path: Path, n: int, marker: bytes = b";LAYER_CHANGE") -> bytes:
+    """The file up to (not including) its (n+1)-th layer marker: a valid, shorter G-code."""
+    data = path.read_bytes()
+    pos = -1
+    for _ in range(n + 1):
+        pos = data.find(b"\n" + marker, pos + 1)
+        if pos < 0:
+            return data
+    return data[: pos + 1]
 
 
 def lines_not_kept(old: bytes, new: bytes, may_change: set[int]) -> tuple[list[int], list[int]]:

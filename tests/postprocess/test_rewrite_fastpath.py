@@ -133,3 +133,31 @@ def test_vector_planned_turn(angles):
     want = [-1.0 if s == 0 or not (math.isfinite(a[s]) and math.isfinite(a[s - 1]))
             else abs(float(a[s] - a[s - 1])) for s in range(len(a))]
     assert planned_turns(a).tolist() == want
+
+
+# ---- the compiled rewrite pass (printability._rewrite_kernel) against the Python it replaces
+
+
+def _span(raw: bytes) -> tuple[int, int]:
+    from gcode.writer import _SIMPLE_MOVE
+
+    m = _SIMPLE_MOVE.match(raw)
+    return m.span(1) if m is not None else (-1, -1)
+
+
+@settings(max_examples=800)
+@given(_odd_lines())
+def test_compiled_line_shape_is_the_expression(raw):
+    from printability._rewrite_kernel import simple_span
+
+    assert simple_span(np.frombuffer(raw, np.uint8), 0, len(raw)) == _span(raw), raw
+
+
+@settings(max_examples=300)
+@given(st.binary(max_size=40).map(lambda b: b.replace(b"\n", b" ").replace(b"\r", b" ")),
+       st.sampled_from([b"", b"\n", b"\r\n", b"\r"]))
+def test_compiled_line_shape_on_random_bytes(body, eol):
+    from printability._rewrite_kernel import simple_span
+
+    for raw in (b"G1 " + body + eol, body + eol, b"G1 X1 " + body[:3] + eol):
+        assert simple_span(np.frombuffer(raw, np.uint8), 0, len(raw)) == _span(raw), raw
