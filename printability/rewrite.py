@@ -168,7 +168,6 @@ class _Events:
     ev_line: np.ndarray
     ev_move: np.ndarray
     ev_code: np.ndarray
-    first_seg: dict
     mv_a0: np.ndarray
     mv_a1: np.ndarray
     s_turn: np.ndarray
@@ -185,8 +184,7 @@ def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widt
 
     n_lines = len(g.lines)
     n_moves = len(moves)
-    # chords of each move (a later run of chords of the same move wins, as in a dict)
-    first_seg: dict[int, tuple[int, int]] = {}
+    # chords of each move: mv_a0[m]:mv_a1[m] (a later run of chords of the same move wins)
     has_seg = np.zeros(n_moves, dtype=bool)
     with_pieces = np.zeros(n_moves, dtype=bool)
     mv_a0 = np.full(n_moves, -1, np.int64)
@@ -194,10 +192,10 @@ def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widt
     if len(seg):
         change = np.flatnonzero(np.diff(seg_move)) + 1
         b = np.concatenate([[0], change, [len(seg_move)]])
-        first_seg = dict(zip(seg_move[b[:-1]].tolist(),
-                             zip(b[:-1].tolist(), b[1:].tolist(), strict=True), strict=True))
-        keys = np.fromiter(first_seg, dtype=np.int64, count=len(first_seg))
-        ranges = np.array(list(first_seg.values()), dtype=np.int64).reshape(-1, 2)
+        run_move = np.asarray(seg_move[b[:-1]], dtype=np.int64)
+        keys, last_rev = np.unique(run_move[::-1], return_index=True)
+        last = len(run_move) - 1 - last_rev  # the last run of each move
+        ranges = np.column_stack([b[:-1][last], b[1:][last]]).astype(np.int64)
         has_seg[keys] = True
         mv_a0[keys] = ranges[:, 0]
         mv_a1[keys] = ranges[:, 1]
@@ -245,7 +243,7 @@ def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widt
     piece_scale = _piece_scales(seg, seg_pieces, widths, h_seg, turns, e_policy, nozzle,
                                 bead_area)
     return _Events(lines_u[ev].astype(np.int64), move_u[ev].astype(np.int64),
-                   effect[move_u[ev]].astype(np.int64), first_seg, mv_a0, mv_a1, s_turn,
+                   effect[move_u[ev]].astype(np.int64), mv_a0, mv_a1, s_turn,
                    s_scale, piece_scale)
 
 
@@ -269,7 +267,7 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
     out = RewriteOutput()
     n_lines = len(g.lines)
     starts = [*g.lines["start"].tolist(), len(data)]
-    first_seg = ev.first_seg
+    mv_a0, mv_a1 = ev.mv_a0.tolist(), ev.mv_a1.tolist()
     fold = wopts.feed_policy == "xy"
     ev_line = ev.ev_line.tolist()
     ev_move = ev.ev_move.tolist()
@@ -409,7 +407,7 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
 
         # ---- this move is rewritten
         layer = m_layer[mi]
-        a0, a1 = first_seg[mi]
+        a0, a1 = mv_a0[mi], mv_a1[mi]
         eol = eol_of(raw)
         e_rel = bool(m_flags[mi] & 1)
         e_move = m_e[mi]

@@ -62,7 +62,7 @@ _texts = st.one_of(
 )
 
 
-@settings(max_examples=2000)
+@settings(max_examples=1000)
 @given(_texts)
 def test_compiled_number_reading_is_float(text):
     raw = text.encode()
