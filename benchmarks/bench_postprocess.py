@@ -23,8 +23,11 @@ cube's first two layers). That second ratio is what a slicer's user waits for.
 
 Run::
 
-    python benchmarks/bench_postprocess.py            # every STL (several minutes)
+    python benchmarks/bench_postprocess.py            # every STL, each run 3 times (~8 min)
     python benchmarks/bench_postprocess.py --quick    # the calibration cube and ThinWall
+    python benchmarks/bench_postprocess.py --repeat 1 # one run of each (noisier)
+
+Each figure is the fastest of ``--repeat`` runs, the slicer's as ours.
 
 Nothing here is asserted: the figures go in the README.
 """
@@ -92,9 +95,19 @@ def plugin_run(path: Path, nozzle: str) -> tuple[float, float]:
     return time.perf_counter() - t0, _children_cpu() - c0
 
 
+def _fastest(runs) -> tuple[float, float]:
+    """(wall s, CPU s) of repeated runs: the smallest of each (what the machine can do; the
+    rest is other work sharing it)."""
+    walls, cpus = zip(*runs, strict=True)
+    return min(walls), min(cpus)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="two small parts only")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="runs of each measurement, the fastest kept (default 3): on a shared "
+                         "machine one run of a small part varies by a third")
     args = ap.parse_args(argv)
     exe = shutil.which("prusa-slicer")
     if exe is None:
@@ -113,21 +126,32 @@ def main(argv: list[str] | None = None) -> int:
         two = first_layers(warm.read_bytes(), 2)
         tiny.write_bytes(two)
         plugin_run(tiny, ELLIPSE)  # the first run may write caches
-        tiny.write_bytes(two)  # the plugin rewrote it in place (and marked it processed)
-        start_wall, start_cpu = plugin_run(tiny, ELLIPSE)
+        def start_once():
+            tiny.write_bytes(two)
+            return plugin_run(tiny, ELLIPSE)
+
+        start_wall, start_cpu = _fastest(start_once() for _ in range(max(1, args.repeat)))
         print(f"plugin start (new process, the cube's first two layers): {start_wall:.2f} s "
               f"wall, {start_cpu:.2f} s CPU")
         print(f"{'part':<24}{'lines':>8}{'slice s':>10}{'CPU':>7}"
               f"{'ellipse s':>11}{'CPU':>7}{'ratio':>7}{'wall r':>7}{'lines/s':>10}{'vs AW':>7}"
               f"{'round s':>9}{'lines/s':>10}{'split':>7}{'dropped':>8}"
               f"{'plugin s':>10}{'CPU':>7}{'ratio':>7}{'wall r':>7}")
+        rep = max(1, args.repeat)
         for name in names:
             out = Path(tmp) / (Path(name).stem + ".gcode")
-            s_wall, s_cpu = slice_part(exe, DATA / name, out)
+            s_wall, s_cpu = _fastest(slice_part(exe, DATA / name, out) for _ in range(rep))
             data = out.read_bytes()
-            e_wall, e_cpu, res = postprocess(data, ELLIPSE)
-            r_wall, r_cpu, _ = postprocess(data, "circle:d=0.4")
-            p_wall, p_cpu = plugin_run(out, ELLIPSE)
+            runs = [postprocess(data, ELLIPSE) for _ in range(rep)]
+            e_wall, e_cpu = _fastest(r[:2] for r in runs)
+            res = runs[0][2]
+            r_wall, r_cpu = _fastest(postprocess(data, "circle:d=0.4")[:2] for _ in range(rep))
+
+            def plugin_once(out=out, data=data):
+                out.write_bytes(data)  # the plugin rewrites it in place
+                return plugin_run(out, ELLIPSE)
+
+            p_wall, p_cpu = _fastest(plugin_once() for _ in range(rep))
             lines = res.lines_in
             print(f"{name[:23]:<24}{lines:>8}{s_wall:>10.2f}{s_cpu:>7.2f}"
                   f"{e_wall:>11.2f}{e_cpu:>7.2f}{e_cpu / max(s_cpu, 1e-9):>7.2f}"
