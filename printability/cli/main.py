@@ -27,6 +27,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "printability.cli.simulate",
     "printability.cli.postprocess",
     "printability.cli.generate",
+    "printability.cli.warmup",
 )
 
 app = typer.Typer(
