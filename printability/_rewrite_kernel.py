@@ -238,6 +238,26 @@ def _put(buf, n, text):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
+def _put_move(buf, n, x, y, with_z, z, xd):  # pragma: no cover
+    """Write ``G1 X… Y…`` (`` Z…`` too when ``with_z``) at ``buf[n:]``; the new end, or -1
+    when a number is declined. ``buf`` must have 120 bytes free at ``n``."""
+    for ch in (71, 49, 32, 88):  # "G1 X"
+        buf[n] = ch
+        n += 1
+    n = put_fixed(buf, n, x, xd)
+    if n < 0:
+        return -1
+    buf[n] = 32
+    buf[n + 1] = 89
+    n = put_fixed(buf, n + 2, y, xd)
+    if n < 0 or not with_z:
+        return n
+    buf[n] = 32
+    buf[n + 1] = 90
+    return put_fixed(buf, n + 2, z, xd)
+
+
+@numba.njit(cache=True, nogil=True)
 def _eol(data, a, b):  # pragma: no cover
     """(start, end) of the line ending of ``data[a:b]`` as :func:`printability.rewrite.eol_of`
     gives it; (-1, -1) stands for an added ``\\n``."""
@@ -290,6 +310,17 @@ def _nearest(target, previous, period, lo, hi, unbounded):  # pragma: no cover
                     best = cand
                     found = True
     return found, best
+
+
+@numba.njit(cache=True, nogil=True)
+def _coordinate(phi, previous, period, lo, hi, unbounded, d):  # pragma: no cover
+    """(ok, c, m): the axis coordinate for orientation ``phi`` (:func:`_nearest`) and its
+    text as digits (:func:`fixed_digits`: equal texts, equal integers)."""
+    ok, c = _nearest(phi, previous, period, lo, hi, unbounded)
+    if not ok:
+        return False, c, np.int64(0)
+    ok, m = fixed_digits(c, d)
+    return ok, c, m
 
 
 @numba.njit(cache=True, nogil=True)
@@ -362,10 +393,7 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
             add = False
             add_c = 0.0
             if turns and math.isfinite(phi):
-                ok, c = _nearest(phi, cur, period, lo, hi, unbounded)
-                if not ok:
-                    return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                ok, cm = fixed_digits(c, d_ang)
+                ok, c, cm = _coordinate(phi, cur, period, lo, hi, unbounded, d_ang)
                 if not ok:
                     return DECLINED, buf, n, changed, inserted, rotary, turned, li
                 if s_fold[a0] and abs(c - cur) <= s_turn[a0] + 1e-6:
@@ -380,10 +408,8 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     # turn_to: folded into the travel before, else a line of its own
                     if fold and travel >= 0:
                         if unwind:
-                            ok, c = _nearest(phi, 0.0, period, lo, hi, unbounded)
-                            if not ok:
-                                return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                            ok, cm = fixed_digits(c, d_ang)
+                            ok, c, cm = _coordinate(phi, 0.0, period, lo, hi, unbounded,
+                                                    d_ang)
                             if not ok:
                                 return DECLINED, buf, n, changed, inserted, rotary, turned, li
                         ta, tb = simple_span(data, starts[travel], starts[travel + 1])
@@ -502,23 +528,11 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     qx1 = sx0 + t1 * (sx1 - sx0)
                     qy1 = sy0 + t1 * (sy1 - sy0)
                     if math.hypot(qx0 - px, qy0 - py) > 1e-9:
-                        ns = _put(scratch, ns, was_g1)
-                        scratch[ns] = 88
-                        ns = put_fixed(scratch, ns + 1, qx0, xd)
+                        z = z0 + (z1 - z0) * min(1.0, (acc + t0 * s_len[s]) / tot) if ramp \
+                            else 0.0
+                        ns = _put_move(scratch, ns, qx0, qy0, ramp, z, xd)
                         if ns < 0:
                             return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                        scratch[ns] = 32
-                        scratch[ns + 1] = 89
-                        ns = put_fixed(scratch, ns + 2, qy0, xd)
-                        if ns < 0:
-                            return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                        if ramp:
-                            z = z0 + (z1 - z0) * min(1.0, (acc + t0 * s_len[s]) / tot)
-                            scratch[ns] = 32
-                            scratch[ns + 1] = 90
-                            ns = put_fixed(scratch, ns + 2, z, xd)
-                            if ns < 0:
-                                return DECLINED, buf, n, changed, inserted, rotary, turned, li
                         if first_end < 0:
                             first_end = ns
                         ns = _put_eol(scratch, ns, data, e0, e1)
@@ -528,10 +542,7 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     c_word = False
                     c_val = 0.0
                     if turns and math.isfinite(phi):
-                        ok, c = _nearest(phi, cur, period, lo, hi, unbounded)
-                        if not ok:
-                            return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                        ok, cm = fixed_digits(c, d_ang)
+                        ok, c, cm = _coordinate(phi, cur, period, lo, hi, unbounded, d_ang)
                         if not ok:
                             return DECLINED, buf, n, changed, inserted, rotary, turned, li
                         if cm != cur_m:
@@ -553,23 +564,10 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                             cur_m = cm
                     de = s_e[s] * (t1 - t0) * scale
                     e_acc += de
-                    ns = _put(scratch, ns, was_g1)
-                    scratch[ns] = 88
-                    ns = put_fixed(scratch, ns + 1, qx1, xd)
+                    z = z0 + (z1 - z0) * min(1.0, (acc + t1 * s_len[s]) / tot) if ramp else 0.0
+                    ns = _put_move(scratch, ns, qx1, qy1, ramp, z, xd)
                     if ns < 0:
                         return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                    scratch[ns] = 32
-                    scratch[ns + 1] = 89
-                    ns = put_fixed(scratch, ns + 2, qy1, xd)
-                    if ns < 0:
-                        return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                    if ramp:
-                        z = z0 + (z1 - z0) * min(1.0, (acc + t1 * s_len[s]) / tot)
-                        scratch[ns] = 32
-                        scratch[ns + 1] = 90
-                        ns = put_fixed(scratch, ns + 2, z, xd)
-                        if ns < 0:
-                            return DECLINED, buf, n, changed, inserted, rotary, turned, li
                     scratch[ns] = 32
                     scratch[ns + 1] = 69
                     ns = put_fixed(scratch, ns + 2, de if e_rel else e_start + e_acc, ed)
@@ -595,26 +593,12 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
             ex = m_x1[mi]
             ey = m_y1[mi]
             if math.hypot(ex - px, ey - py) > 1e-9 or n_new == 0:
-                ns = _put(scratch, ns, was_g1[:2])
-                scratch[ns] = 32
-                scratch[ns + 1] = 88
-                ns = put_fixed(scratch, ns + 2, ex, xd)
+                # chord a1 - 1 at t = 1: the path length before it plus its own, which is
+                # acc (summed in the same order)
+                z = z0 + (z1 - z0) * min(1.0, acc / tot) if ramp else 0.0
+                ns = _put_move(scratch, ns, ex, ey, ramp, z, xd)
                 if ns < 0:
                     return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                scratch[ns] = 32
-                scratch[ns + 1] = 89
-                ns = put_fixed(scratch, ns + 2, ey, xd)
-                if ns < 0:
-                    return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                if ramp:
-                    # chord a1 - 1 at t = 1: the path length before it plus its own, which
-                    # is acc (summed in the same order)
-                    z = z0 + (z1 - z0) * min(1.0, acc / tot)
-                    scratch[ns] = 32
-                    scratch[ns + 1] = 90
-                    ns = put_fixed(scratch, ns + 2, z, xd)
-                    if ns < 0:
-                        return DECLINED, buf, n, changed, inserted, rotary, turned, li
                 if first and fa >= 0:
                     scratch[ns] = 32
                     ns = _copy(scratch, ns + 1, data, fa, fb)
