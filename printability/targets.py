@@ -164,7 +164,9 @@ def threaded(fn, items: list, workers: int):
     with ThreadPoolExecutor(workers) as ex:
         queue = deque(ex.submit(fn, item) for item in itertools.islice(it, workers + 1))
         while queue:
-            done = queue.popleft()
+            # the next item is submitted once the consumer is done with this one: while it
+            # holds one result, `workers` more are at most built or held (the refill before
+            # the yield let workers + 2 start, which the test caught on a busy machine)
+            yield queue.popleft().result()
             for item in itertools.islice(it, 1):
                 queue.append(ex.submit(fn, item))
-            yield done.result()
