@@ -71,7 +71,7 @@ from printability.motion.orientation import (
 )
 from printability.nozzle import Nozzle, parse_nozzle
 from printability.options import E_POLICIES, FEED_POLICIES
-from printability.rewrite import eol_of, first_command_line, rewrite
+from printability.rewrite import eol_of, first_command_line, piece_rows_of, rewrite
 from printability.targets import layer_targets
 
 __all__ = [
@@ -411,6 +411,7 @@ def postprocess_bytes(
     seg_fold = np.zeros(len(seg), dtype=bool)
     seg_width_laid = np.full(len(seg), np.nan)
     seg_pieces: dict[int, list] = {}
+    rows_found: list[tuple] = []  # the same pieces as arrays, per batch
     reports: list[LayerReport] = []
     prev = 0.0
     for layers, offset, tgt, areas in batches:
@@ -437,6 +438,8 @@ def postprocess_bytes(
             seg_width_laid[idx] = plan.width
             for i, pieces in plan.pieces.items():
                 seg_pieces[int(idx[i])] = pieces
+            if plan.piece_rows is not None:
+                rows_found.append((idx[plan.piece_rows[0]], *plan.piece_rows[1:]))
             finite = plan.angle[np.isfinite(plan.angle)]
             if finite.size:
                 prev = float(finite[-1])
@@ -444,9 +447,14 @@ def postprocess_bytes(
                                       widths))
 
     # ---- rewrite
+    piece_rows = None
+    if rows_found and sum(len(r[0]) for r in rows_found) == sum(map(len, seg_pieces.values())):
+        cols = [np.concatenate([r[c] for r in rows_found]) for c in range(4)]
+        by_chord = np.argsort(cols[0], kind="stable")
+        piece_rows = tuple(c[by_chord] for c in cols)
     out, turned_per_layer = rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
                                     seg_width_laid, seg_pieces, widths, heights, wopts, turns,
-                                    e_policy, nozzle)
+                                    e_policy, nozzle, piece_rows=piece_rows)
     reports = [LayerReport(**{**r.__dict__, "turned": turned_per_layer.get(r.index, 0)})
                for r in reports]
     summary = [{"z": r.z, "target_area": r.target_area, "lost_area": r.dropped_area,
@@ -483,22 +491,24 @@ def _layer_reports(g, layers, areas, idx, counts, lay_of, plan, seg_len, widths
                    ) -> list[LayerReport]:
     """What the plan of a batch did to each of its layers (``idx``: the batch's chords,
     ``counts`` per layer, ``lay_of`` the layer of each within the batch)."""
+    from printability.motion._plan_kernels import piece_losses
+
     n = len(layers)
     split = np.zeros(n, np.int64)
     dropped = np.zeros(n, np.int64)
-    d_len = [0.0] * n
-    d_area = [0.0] * n
-    if plan is not None:
-        for i, pieces in plan.pieces.items():
-            j = int(lay_of[i])
-            kept = sum(p.t1 - p.t0 for p in pieces)
-            if pieces:
-                split[j] += 1
-            else:
-                dropped[j] += 1
-            gone = float(seg_len[idx[i]]) * max(0.0, 1.0 - kept)
-            d_len[j] += gone
-            d_area[j] += gone * float(widths[idx[i]])
+    d_len = np.zeros(n)
+    d_area = np.zeros(n)
+    if plan is not None and plan.pieces:
+        keys = np.fromiter(plan.pieces, dtype=np.int64, count=len(plan.pieces))
+        rows = plan.piece_rows if plan.piece_rows is not None else piece_rows_of(plan.pieces)
+        row_move = np.asarray(rows[0], np.int64)
+        split, dropped, d_len, d_area = piece_losses(
+            keys, np.searchsorted(row_move, keys, "left"),
+            np.searchsorted(row_move, keys, "right"), np.asarray(rows[1], float),
+            np.asarray(rows[2], float), np.asarray(lay_of, np.int64),
+            np.asarray(seg_len[idx[keys]], float), np.asarray(widths[idx[keys]], float), n)
+    d_len = d_len.tolist()
+    d_area = d_area.tolist()
     starts = np.concatenate([[0], np.cumsum(counts)])
     return [LayerReport(
         index=k, z=float(g.layers["z"][k]), target_area=areas[j], moves=int(counts[j]),

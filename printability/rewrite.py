@@ -28,7 +28,7 @@ from printability.errors import InputError
 from printability.nozzle import Nozzle
 
 __all__ = ["RewriteOutput", "e_scale", "e_scales", "eol_of", "first_command_line",
-           "planned_turns", "rewrite", "rewrite_reference"]
+           "piece_rows_of", "planned_turns", "rewrite", "rewrite_reference"]
 
 
 @dataclass
@@ -82,17 +82,19 @@ def first_command_line(lines: np.ndarray) -> int:
 
 def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, seg_pieces,
             widths, heights, wopts: WriterOptions, turns: bool, e_policy: str,
-            nozzle: Nozzle) -> tuple[RewriteOutput, dict[int, int]]:
+            nozzle: Nozzle, *, piece_rows: tuple | None = None
+            ) -> tuple[RewriteOutput, dict[int, int]]:
     """Copy the file, rewriting the part extrusions that need it.
 
     The compiled pass of :mod:`printability._rewrite_kernel` writes the bytes
     :func:`rewrite_reference` writes; what it declines (numbers or lines outside
-    the range where it is exact, see there) goes to the reference.
+    the range where it is exact, see there) goes to the reference. ``piece_rows`` are the
+    pieces of ``seg_pieces`` as arrays ``(chord, t0, t1, angle)`` by chord, when known.
     """
     from printability._rewrite_kernel import OK, rewrite_kernel
 
     ev = _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widths,
-                 heights, wopts, turns, e_policy, nozzle)
+                 heights, wopts, turns, e_policy, nozzle, piece_rows=piece_rows)
     if not ev.ev_line.size:
         return rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold,
                                  seg_width_laid, seg_pieces, widths, heights, wopts, turns,
@@ -105,21 +107,13 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
     n_seg = len(seg)
     # the pieces of split chords, flat: chord s has pieces p_lo[s]:p_hi[s]
     in_pieces = np.zeros(n_seg, np.uint8)
-    p_lo = np.zeros(n_seg, np.int64)
-    p_hi = np.zeros(n_seg, np.int64)
     keys = np.fromiter(seg_pieces, dtype=np.int64, count=len(seg_pieces))
-    counts = np.fromiter((len(v) for v in seg_pieces.values()), dtype=np.int64,
-                         count=len(seg_pieces))
-    n_p = int(counts.sum()) if counts.size else 0
-    p_t0 = np.fromiter((p.t0 for v in seg_pieces.values() for p in v), float, count=n_p)
-    p_t1 = np.fromiter((p.t1 for v in seg_pieces.values() for p in v), float, count=n_p)
-    p_angle = np.fromiter((p.angle for v in seg_pieces.values() for p in v), float, count=n_p)
-    p_scale = np.fromiter((x for k in seg_pieces for x in ev.piece_scale[k]), float,
-                          count=n_p)
-    if keys.size:
-        in_pieces[keys] = 1
-        p_hi[keys] = np.cumsum(counts)
-        p_lo[keys] = p_hi[keys] - counts
+    in_pieces[keys] = 1  # split or dropped (no pieces)
+    p_seg, p_t0, p_t1, p_angle = ev.piece_rows
+    all_seg = np.arange(n_seg)
+    p_lo = np.searchsorted(p_seg, all_seg, "left").astype(np.int64)
+    p_hi = np.searchsorted(p_seg, all_seg, "right").astype(np.int64)
+    p_scale = ev.piece_scale_flat
     # chord lengths of climbing moves (spiral vase), as the reference measures them
     s_len = np.zeros(n_seg)
     if n_seg:
@@ -172,14 +166,30 @@ class _Events:
     mv_a1: np.ndarray
     s_turn: np.ndarray
     s_scale: np.ndarray
-    piece_scale: dict
+    piece_rows: tuple
+    piece_scale_flat: np.ndarray
+
+    @property
+    def piece_scale(self) -> dict[int, list[float]]:
+        """Per split chord, the E factor of each of its pieces, in order."""
+        p_seg = self.piece_rows[0]
+        flat = self.piece_scale_flat.tolist()
+        cut = (np.flatnonzero(np.diff(p_seg)) + 1).tolist()
+        out: dict[int, list[float]] = {}
+        lo = 0
+        for hi in [*cut, len(flat)]:
+            if hi > lo:
+                out[int(p_seg[lo])] = flat[lo:hi]
+            lo = hi
+        return out
 
 
 _NONE, _TRAVEL, _RESET, _WORK = 0, 1, 2, 3
 
 
 def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widths, heights,
-            wopts: WriterOptions, turns: bool, e_policy: str, nozzle: Nozzle) -> _Events:
+            wopts: WriterOptions, turns: bool, e_policy: str, nozzle: Nozzle, *,
+            piece_rows: tuple | None = None) -> _Events:
     from gcode.rotary import bead_area
 
     n_lines = len(g.lines)
@@ -240,30 +250,43 @@ def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widt
                            bead_area)
     else:
         s_scale = np.zeros(0)
-    piece_scale = _piece_scales(seg, seg_pieces, widths, h_seg, turns, e_policy, nozzle,
-                                bead_area)
+    rows = piece_rows if piece_rows is not None else piece_rows_of(seg_pieces)
+    rows = (np.asarray(rows[0], np.int64), *(np.asarray(r, float) for r in rows[1:]))
+    scale = _piece_scales(seg, rows[0], rows[3], widths, h_seg, turns, e_policy, nozzle,
+                          bead_area)
     return _Events(lines_u[ev].astype(np.int64), move_u[ev].astype(np.int64),
                    effect[move_u[ev]].astype(np.int64), mv_a0, mv_a1, s_turn,
-                   s_scale, piece_scale)
+                   s_scale, rows, scale)
+
+
+def piece_rows_of(seg_pieces: dict) -> tuple:
+    """The pieces of a ``{chord: [OrientedPiece, …]}`` dict as arrays ``(chord, t0, t1,
+    angle)``, by chord and then as listed (dropped chords, with no piece, have no row)."""
+    keys = sorted(seg_pieces)
+    n = [len(seg_pieces[k]) for k in keys]
+    flat = [p for k in keys for p in seg_pieces[k]]
+    return (np.repeat(np.asarray(keys, np.int64), n), np.array([p.t0 for p in flat], float),
+            np.array([p.t1 for p in flat], float), np.array([p.angle for p in flat], float))
 
 
 def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
                       seg_pieces, widths, heights, wopts: WriterOptions, turns: bool,
-                      e_policy: str, nozzle: Nozzle, *, events: _Events | None = None
-                      ) -> tuple[RewriteOutput, dict[int, int]]:
+                      e_policy: str, nozzle: Nozzle, *, events: _Events | None = None,
+                      piece_rows: tuple | None = None) -> tuple[RewriteOutput, dict[int, int]]:
     """Copy the file, rewriting the part extrusions that need it (the reference, in Python).
 
     Only the lines of moves that may change are looked at one by one; the runs of
     lines between them are copied as single slices of ``data``. The chunks of the
     result are one per line up to the first command line (the header goes there),
-    then runs and rewritten lines.
+    then runs and rewritten lines. ``events`` and ``piece_rows`` are what :func:`rewrite`
+    already computed, when it did.
     """
     from gcode.line import parse_line
     from gcode.writer import edit_e, edit_line, simple_move_words
 
     ev = events if events is not None else _events(
         g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widths, heights, wopts,
-        turns, e_policy, nozzle)
+        turns, e_policy, nozzle, piece_rows=piece_rows)
     out = RewriteOutput()
     n_lines = len(g.lines)
     starts = [*g.lines["start"].tolist(), len(data)]
@@ -483,7 +506,8 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
             in_pieces = s in seg_pieces
             if in_pieces:
                 plist = [(p.t0, p.t1, p.angle, sc)
-                         for p, sc in zip(seg_pieces[s], piece_scale[s], strict=True)]
+                         for p, sc in zip(seg_pieces[s], piece_scale.get(s, ()),
+                                          strict=True)]
             else:
                 plist = [(0.0, 1.0, s_angle[s], s_scale[s])]
             for t0, t1, phi, scale in plist:
@@ -541,17 +565,10 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
     return out, turned
 
 
-def _piece_scales(seg, seg_pieces, widths, h_seg, turns: bool, e_policy: str, nozzle: Nozzle,
-                  bead_area) -> dict[int, list[float]]:
-    """Per split chord, the E factor of each of its pieces (:func:`e_scale` of the width
-    the piece lays at its orientation), for all pieces at once."""
-    if not seg_pieces:
-        return {}
-    keys = list(seg_pieces)
-    counts = [len(seg_pieces[s]) for s in keys]
-    p_seg = np.repeat(np.asarray(keys, dtype=np.int64), counts)
-    phi = np.fromiter((p.angle for s in keys for p in seg_pieces[s]), dtype=float,
-                      count=len(p_seg))
+def _piece_scales(seg, p_seg, phi, widths, h_seg, turns: bool, e_policy: str, nozzle: Nozzle,
+                  bead_area) -> np.ndarray:
+    """The E factor of every piece of the split chords (chord ``p_seg``, orientation ``phi``):
+    :func:`e_scale` of the width the piece lays at its orientation, all at once."""
     scale = np.ones(len(p_seg))
     live = np.isfinite(phi)
     if turns and live.any():
@@ -560,13 +577,7 @@ def _piece_scales(seg, seg_pieces, widths, h_seg, turns: bool, e_policy: str, no
         w_laid = nozzle.bead_widths(rel, phi[live])
         scale[live] = e_scales(w_laid, np.asarray(widths, dtype=float)[p_seg[live]],
                                h_seg[p_seg[live]], e_policy, nozzle, bead_area)
-    flat = scale.tolist()
-    out: dict[int, list[float]] = {}
-    pos = 0
-    for s, n in zip(keys, counts, strict=True):
-        out[s] = flat[pos:pos + n]
-        pos += n
-    return out
+    return scale
 
 
 def planned_turns(seg_angle: np.ndarray) -> np.ndarray:

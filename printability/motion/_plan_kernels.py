@@ -14,7 +14,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["chain_nearest", "merge_pieces", "smooth_chain", "split_intervals", "width_picks"]
+__all__ = ["chain_nearest", "merge_pieces", "piece_losses", "smooth_chain", "split_intervals",
+           "width_picks"]
 
 
 @numba.njit(cache=True)
@@ -219,3 +220,34 @@ def merge_pieces(move, t0, t1, angle):  # pragma: no cover
             op[k] = angle[i]
             k += 1
     return om[:k], oa[:k], ob[:k], op[:k]
+
+
+@numba.njit(cache=True, nogil=True)
+def piece_losses(keys, lo, hi, row_t0, row_t1, lay_of, length, width, n_layers):  # pragma: no cover
+    """What the split and dropped moves of a plan leave out, per layer.
+
+    ``keys`` are the split or dropped moves in order, with pieces ``lo[q]:hi[q]`` of the
+    rows ``row_t0``, ``row_t1``
+    (:attr:`~printability.motion.orientation.Plan.piece_rows`), ``lay_of`` each move's
+    layer, ``length`` and ``width`` (mm) each key's. Returns per layer the split moves,
+    the dropped moves, the length not printed (mm) and that times the width (mm²), summed
+    in the order a Python loop over the plan's pieces sums them (the same bits).
+    """
+    split = np.zeros(n_layers, np.int64)
+    dropped = np.zeros(n_layers, np.int64)
+    d_len = np.zeros(n_layers)
+    d_area = np.zeros(n_layers)
+    for q in range(len(keys)):
+        kept = 0.0
+        for r in range(lo[q], hi[q]):
+            kept += row_t1[r] - row_t0[r]
+        j = lay_of[keys[q]]
+        if hi[q] > lo[q]:
+            split[j] += 1
+        else:
+            dropped[j] += 1
+        rest = 1.0 - kept
+        gone = length[q] * (rest if rest > 0.0 else 0.0)
+        d_len[j] += gone
+        d_area[j] += gone * width[q]
+    return split, dropped, d_len, d_area

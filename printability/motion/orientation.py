@@ -121,12 +121,16 @@ class Plan:
     fold
         (n,) True where the turn from the previous move's orientation is made
         during the move (checked with the turning footprint).
+    piece_rows
+        The pieces of ``pieces`` as arrays ``(move, t0, t1, angle)``, by move and then
+        as listed (empty lists have no row); None when not given.
     """
 
     angle: np.ndarray
     width: np.ndarray
     pieces: dict[int, list[OrientedPiece]] = field(default_factory=dict)
     fold: np.ndarray | None = None
+    piece_rows: tuple | None = None
 
     @property
     def split_moves(self) -> int:
@@ -333,6 +337,7 @@ def plan_orientations(
 
     ok = fp.fits(prepared_target, pieces, p0, p1, angle, scale=scale)
     result_pieces: dict[int, list[OrientedPiece]] = {}
+    rows = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0))
     bad = np.flatnonzero(~ok)
     beta, wtab = width_table(nozzle)
     if bad.size:
@@ -356,12 +361,12 @@ def plan_orientations(
         angle[bad[found]] = best[found]
         rest = ~found
         if rest.any():
-            split = _split_many(prepared_target, pieces, p0[bad[rest]], p1[bad[rest]],
-                                direction[bad[rest]], widths[bad[rest]], prev_bad[rest], cands,
-                                beta, wtab, per, nozzle, options,
-                                None if sc is None else sc[rest],
-                                ordered=(near[rest], order[rest]))
+            split, (pm, pa, pb, pp) = _split_many(
+                prepared_target, pieces, p0[bad[rest]], p1[bad[rest]], direction[bad[rest]],
+                widths[bad[rest]], prev_bad[rest], cands, beta, wtab, per, nozzle, options,
+                None if sc is None else sc[rest], ordered=(near[rest], order[rest]))
             result_pieces.update(zip(bad[rest].tolist(), split, strict=True))
+            rows = (bad[rest][pm], pa, pb, pp)
             angle[bad[rest]] = np.nan
     if turns and n > 1:
         angle = _smooth(angle, bad, c1, c2, per, previous, prepared_target, pieces, p0, p1,
@@ -379,7 +384,7 @@ def plan_orientations(
     good = ~np.isnan(angle)
     rel = np.mod(angle[good] - direction[good], 360.0)
     width[good] = np.interp(rel, np.append(beta, 360.0), np.append(wtab, wtab[0]))
-    return Plan(angle=angle, width=width, pieces=result_pieces, fold=fold)
+    return Plan(angle=angle, width=width, pieces=result_pieces, fold=fold, piece_rows=rows)
 
 
 def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scale, machine):
@@ -496,7 +501,8 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
 
 
 def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
-                options, scale=None, fast=True, ordered=None) -> list[list[OrientedPiece]]:
+                options, scale=None, fast=True, ordered=None
+                ) -> tuple[list[list[OrientedPiece]], tuple]:
     """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
     A move usually fails because one end pokes out at a corner: first the
@@ -507,6 +513,9 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     twice ``split_length`` searched again. A few vectorised searches in all,
     whatever the number of moves. ``ordered`` is :func:`_cost_order`'s answer for these
     moves when already known (only where ``prev`` has no NaN: here a NaN counts as 0).
+
+    Returns the pieces of each move, and the same as arrays ``(move, t0, t1, angle)`` by
+    move (:attr:`Plan.piece_rows`).
     """
     n = len(a)
     step = options.split_length or max(0.05, nozzle.radius / 4)
@@ -611,6 +620,6 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         if hi > lo:
             out[int(pm[lo])] = made[lo:hi]
         lo = hi
-    return out
+    return out, (pm, pa, pb, pp)
 
 
