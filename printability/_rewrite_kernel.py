@@ -386,7 +386,11 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
         t_gb = 0  # start) and the coordinate it turns to
         t_word_c = 0.0
         ns = 0  # bytes of this move's new text in scratch
-        scratch = _reserve(scratch, 0, (b - a) + (a1 - a0) * 400 + 4096)
+        # room for the new text: a line is at most its own bytes (the copied words: an F
+        # word may be long), numbers of at most 24 bytes and the rotary letter twice, so
+        # every write below stays inside the buffer (numba does not check bounds)
+        extra = 400 + 2 * len(letter) + (b - a)
+        scratch = _reserve(scratch, 0, (b - a) + extra + 4096)
         if a1 - a0 == 1 and s_in_pieces[a0] == 0 and m_kind[mi] <= 1:
             # ---- a simple move: a rotary word, an E edit, or both
             phi = s_angle[a0]
@@ -511,7 +515,7 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                 in_p = s_in_pieces[s] != 0
                 r0 = s_p0[s] if in_p else 0
                 r1 = s_p1[s] if in_p else 1
-                scratch = _reserve(scratch, ns, (r1 - r0) * 400 + 400)
+                scratch = _reserve(scratch, ns, (r1 - r0 + 1) * extra)
                 for r in range(r0, r1):
                     if in_p:
                         t0 = p_t0[r]
@@ -589,7 +593,7 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     py = qy1
                 if ramp:
                     acc += s_len[s]
-            scratch = _reserve(scratch, ns, 400)
+            scratch = _reserve(scratch, ns, 2 * extra)
             ex = m_x1[mi]
             ey = m_y1[mi]
             if math.hypot(ex - px, ey - py) > 1e-9 or n_new == 0:
@@ -631,7 +635,7 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
             ns += k
             inserted += n_new - 1
         # ---- flush: the run, the travel (with the folded turn), the lines between, the move
-        buf = _reserve(buf, n, (b - pos) + ns + 64)
+        buf = _reserve(buf, n, (b - pos) + ns + 64 + len(letter))
         if t_line >= 0:
             ta = starts[t_line]
             n = _copy(buf, n, data, pos, ta + t_gb)

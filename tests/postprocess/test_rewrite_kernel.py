@@ -146,3 +146,18 @@ def test_a_line_the_kernel_cannot_edit_goes_to_the_reference(prusa_short):
     fast, slow, statuses = _both(odd, nozzle=ELLIPSE, machine="ttr")
     assert statuses == [rk.DECLINED]
     assert fast == slow
+
+
+def test_long_words_stay_inside_the_kernels_buffers(prusa_short):
+    """Moves whose F word is long (a split move's first new line copies it): the compiled
+    pass writes what the reference writes (its buffers grow to fit)."""
+    data = prusa_short.read_bytes()
+    long_f = b" F" + b"1" * 3000
+    lines = data.split(b"\n")
+    for k, line in enumerate(lines):
+        if line.startswith(b"G1 X") and b" E" in line and b";" not in line:
+            lines[k] = line + long_f
+    fast, slow, statuses = _both(b"\n".join(lines), nozzle=ELLIPSE, machine="ttr")
+    assert statuses == [rk.OK]
+    assert fast == slow
+    assert long_f in fast
