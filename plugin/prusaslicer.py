@@ -12,6 +12,12 @@ place; on failure it shows what the script printed on stderr. Options are
 those of ``printability postprocess`` (``--help``); they can also be given in
 the ``PRINTABILITY_POSTPROCESS_ARGS`` environment variable (shell syntax),
 which is handy when the slicer's field is shared between printers.
+
+When ``printability serve`` is running, the run is handed to it (same output
+file, same messages, same exit code) and this process costs Python's start and
+a socket round trip instead of the libraries' start; otherwise, or if the
+server declines or breaks off, it runs here (see
+:mod:`printability.server_client`).
 """
 
 from __future__ import annotations
@@ -37,9 +43,18 @@ def build_argv(argv: list[str], environ: dict[str, str] | None = None) -> list[s
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``printability postprocess`` the way a slicer calls a script; returns the exit code."""
+    args = build_argv(sys.argv[1:] if argv is None else argv)
+    from printability.server_client import run_remote
+
+    remote = run_remote(args, cwd=os.getcwd(), environ=os.environ)
+    if remote is not None:
+        sys.stdout.write(remote.stdout)
+        sys.stderr.write(remote.stderr)
+        sys.stdout.flush()
+        return remote.rc
     from printability.cli.main import main as cli_main
 
-    return cli_main(build_argv(sys.argv[1:] if argv is None else argv))
+    return cli_main(args)
 
 
 if __name__ == "__main__":  # pragma: no cover

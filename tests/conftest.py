@@ -31,3 +31,11 @@ def _hypothesis_profiles() -> None:
 
 
 _hypothesis_profiles()
+
+
+@pytest.fixture(autouse=True)
+def _no_postprocess_server(monkeypatch):
+    """A ``printability serve`` the developer left running must not answer the tests' plug-in
+    runs (its code may be older than the tree's): the plug-in runs locally unless a test
+    points PRINTABILITY_SERVER at its own server."""
+    monkeypatch.setenv("PRINTABILITY_SERVER", "off")

@@ -28,6 +28,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "printability.cli.postprocess",
     "printability.cli.generate",
     "printability.cli.warmup",
+    "printability.cli.serve",
 )
 
 app = typer.Typer(

@@ -1,0 +1,216 @@
+"""The plug-in's side of ``printability serve``: hand a post-processing run to a warm server.
+
+A slicer starts its post-processing script as a new process for every export.
+Most of that process's time on a small part is the start of the libraries,
+not the work: numba's import, set-up and cached-kernel loads alone are about
+1 s, numpy, shapely and typer another 0.3 s (see the README's performance
+table). ``printability serve`` pays that once and then runs each request in
+its warm process; :func:`run_remote` is what the ``printability-postprocess``
+entry point calls first. It uses the standard library only, so a client
+costs Python's own start and a socket round trip.
+
+Conventions, written once here and shared with :mod:`printability.server`:
+
+Address
+    A Unix-domain socket. ``PRINTABILITY_SERVER`` in the environment names
+    it (a path), or is ``off`` to never use a server. By default it is
+    ``$XDG_RUNTIME_DIR/printability/serve-<version>.sock``, or
+    ``<temp dir>/printability-<uid>/serve-<version>.sock`` without
+    ``XDG_RUNTIME_DIR``. The version is in the name, so an upgraded plug-in
+    never talks to an older server. The directory must belong to the user and
+    be closed to others (mode 0700): only the user can connect, and a
+    directory that does not pass that check is not used. Platforms without
+    Unix-domain sockets (Windows' Python) always run locally.
+Messages
+    One request and one reply per connection, each a JSON object preceded by
+    its length (4 bytes, big-endian). A request carries ``protocol``,
+    ``version`` and ``op``: ``run`` (with ``argv``, ``cwd`` and ``env``, the
+    caller's ``SLIC3R_*`` and ``PRINTABILITY_*`` variables), ``status`` or
+    ``stop``. The reply to a run is ``{"ok": true, "rc", "stdout",
+    "stderr"}``, or ``{"ok": false, "reason"}`` when the server declines (an
+    other version, or its source files changed since it started).
+Falling back
+    Whenever no reply comes (no server, a refused or broken connection, a
+    decline), the caller runs the command itself. That is always safe: the
+    server replaces files atomically, and a file it did finish is marked as
+    processed, so running again leaves it as it is.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import stat
+import struct
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from printability import __version__
+
+__all__ = [
+    "PROTOCOL",
+    "RemoteResult",
+    "ServerAddressError",
+    "call",
+    "default_address",
+    "forwarded_env",
+    "recv_message",
+    "run_remote",
+    "secure_dir",
+    "send_message",
+]
+
+PROTOCOL = 1
+_MAX_MESSAGE = 64 * 2**20  # a reply carries a command's output: far below this
+_CONNECT_TIMEOUT = 2.0  # s; a live server accepts at once (its backlog queues clients)
+
+
+class ServerAddressError(OSError):
+    """The server's socket directory is not the user's own private directory."""
+
+
+@dataclass(frozen=True)
+class RemoteResult:
+    """A run done by the server: its exit code and what it printed."""
+
+    rc: int
+    stdout: str
+    stderr: str
+
+
+def secure_dir(path: str, *, create: bool) -> str:
+    """Return ``path`` after checking that it is a directory owned by the user with no access
+    for others (creating it with mode 0700 when ``create``); raise :class:`ServerAddressError`
+    otherwise."""
+    if create:
+        os.makedirs(path, mode=0o700, exist_ok=True)
+    try:
+        st = os.lstat(path)
+    except OSError as exc:
+        raise ServerAddressError(f"{path}: {exc.strerror}") from None
+    if not stat.S_ISDIR(st.st_mode):
+        raise ServerAddressError(f"{path}: expected a directory, found another kind of file")
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        raise ServerAddressError(f"{path}: expected a directory of yours, found user "
+                                 f"{st.st_uid}'s")
+    if st.st_mode & 0o077:
+        raise ServerAddressError(f"{path}: expected a private directory (mode 0700), found "
+                                 f"mode {stat.S_IMODE(st.st_mode):o}")
+    return path
+
+
+def default_address(environ: Mapping[str, str] | None = None) -> str | None:
+    """The server's socket path, or ``None`` when servers are off (``PRINTABILITY_SERVER=off``)
+    or unsupported here."""
+    env = os.environ if environ is None else environ
+    chosen = env.get("PRINTABILITY_SERVER", "")
+    if chosen.lower() == "off" or not hasattr(socket, "AF_UNIX"):
+        return None
+    if chosen:
+        return chosen
+    runtime = env.get("XDG_RUNTIME_DIR", "")
+    if runtime and os.path.isdir(runtime):
+        base = os.path.join(runtime, "printability")
+    else:
+        uid = os.getuid() if hasattr(os, "getuid") else 0
+        base = os.path.join(tempfile.gettempdir(), f"printability-{uid}")
+    return os.path.join(base, f"serve-{__version__}.sock")
+
+
+def forwarded_env(environ: Mapping[str, str]) -> dict[str, str]:
+    """The variables a run depends on: the slicer's ``SLIC3R_*`` and our ``PRINTABILITY_*``
+    (the server address itself excepted)."""
+    return {k: v for k, v in environ.items()
+            if (k.startswith("SLIC3R_") or k.startswith("PRINTABILITY_"))
+            and k != "PRINTABILITY_SERVER"}
+
+
+def send_message(sock: socket.socket, obj: Mapping[str, object]) -> None:
+    """Send one length-prefixed JSON object."""
+    data = json.dumps(obj).encode("utf-8")
+    sock.sendall(struct.pack(">I", len(data)) + data)
+
+
+def _recv_exactly(sock: socket.socket, n: int) -> bytes | None:
+    chunks, got = [], 0
+    while got < n:
+        chunk = sock.recv(min(n - got, 1 << 20))
+        if not chunk:
+            return None
+        chunks.append(chunk)
+        got += len(chunk)
+    return b"".join(chunks)
+
+
+def recv_message(sock: socket.socket) -> dict | None:
+    """Receive one length-prefixed JSON object; ``None`` if the peer closed first or sent
+    something that is not one."""
+    head = _recv_exactly(sock, 4)
+    if head is None:
+        return None
+    (n,) = struct.unpack(">I", head)
+    if n > _MAX_MESSAGE:
+        return None
+    body = _recv_exactly(sock, n)
+    if body is None:
+        return None
+    try:
+        obj = json.loads(body.decode("utf-8"))
+    except ValueError:
+        return None
+    return obj if isinstance(obj, dict) else None
+
+
+def call(address: str, request: Mapping[str, object], *, timeout: float | None) -> dict | None:
+    """One request to the server at ``address``; its reply, or ``None`` when there is no
+    server there or it closed without replying. ``timeout`` bounds the wait for the reply
+    (s; ``None``: as long as the work takes)."""
+    if not os.path.exists(address):
+        return None
+    try:
+        secure_dir(os.path.dirname(address) or ".", create=False)
+    except ServerAddressError:
+        return None
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        sock.settimeout(_CONNECT_TIMEOUT)
+        sock.connect(address)
+        sock.settimeout(timeout)
+        send_message(sock, {"protocol": PROTOCOL, "version": __version__, **request})
+        return recv_message(sock)
+    except OSError:  # refused (a stale socket file), reset, timed out: no server
+        return None
+    finally:
+        sock.close()
+
+
+def run_remote(argv: list[str], *, cwd: str, environ: Mapping[str, str],
+               address: str | None = None) -> RemoteResult | None:
+    """Run the ``printability`` command ``argv`` on the server; ``None`` when the caller must
+    run it itself (see the module docs: no server, or it declined or broke off).
+
+    Parameters
+    ----------
+    argv
+        The command's arguments (without the program name), as for
+        :func:`printability.cli.main.main`.
+    cwd
+        The directory relative paths in ``argv`` are relative to.
+    environ
+        The caller's environment (only :func:`forwarded_env` of it is sent).
+    address
+        The socket (default: :func:`default_address` of ``environ``).
+    """
+    address = default_address(environ) if address is None else address
+    if address is None:
+        return None
+    reply = call(address, {"op": "run", "argv": list(argv), "cwd": cwd,
+                           "env": forwarded_env(environ)}, timeout=None)
+    if not reply or reply.get("ok") is not True:
+        return None
+    rc, out, err = reply.get("rc"), reply.get("stdout"), reply.get("stderr")
+    if not (isinstance(rc, int) and isinstance(out, str) and isinstance(err, str)):
+        return None
+    return RemoteResult(rc, out, err)

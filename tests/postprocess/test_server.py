@@ -1,0 +1,248 @@
+"""``printability serve`` and the plug-in's hand-over to it (printability.server*)."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from plugin.prusaslicer import main as plugin_main
+from printability import __version__
+from printability.errors import PrintabilityOSError
+from printability.postprocess import already_processed
+from printability.server import serve, server_status, stop_server
+from printability.server_client import (
+    ServerAddressError,
+    call,
+    default_address,
+    forwarded_env,
+    run_remote,
+    secure_dir,
+)
+
+ELLIPSE = "ellipse:major=0.8,minor=0.3"
+PLUGIN = str(Path(sys.executable).with_name("printability-postprocess"))
+CLI = str(Path(sys.executable).with_name("printability"))
+
+pytestmark = pytest.mark.skipif(not hasattr(socket, "AF_UNIX"), reason="no Unix-domain sockets")
+
+
+@pytest.fixture()
+def private(tmp_path):
+    d = tmp_path / "srv"
+    d.mkdir(mode=0o700)
+    return d
+
+
+class Server:
+    """A server in a thread of this process (its kernels are this worker's, already compiled
+    or compiled once for all the tests)."""
+
+    def __init__(self, address: Path, **kw):
+        self.address = str(address)
+        self.result = None
+        ready = threading.Event()
+
+        def run():
+            def event(msg):
+                if msg.startswith("listening"):
+                    ready.set()
+            try:
+                self.result = serve(address=self.address, warm=False, on_event=event, **kw)
+            finally:
+                ready.set()
+
+        self.thread = threading.Thread(target=run, daemon=True)
+        self.thread.start()
+        assert ready.wait(30)
+
+    def stop(self):
+        if self.thread.is_alive():
+            stop_server(self.address)
+        self.thread.join(30)
+        assert not self.thread.is_alive()
+        return self.result
+
+
+@pytest.fixture()
+def server(private):
+    s = Server(private / "s.sock")
+    yield s
+    s.stop()
+
+
+def _plugin(args, *, address, cwd, env_extra=None):
+    env = {**os.environ, "PRINTABILITY_SERVER": address, "SLIC3R_NOZZLE_DIAMETER": "0.4",
+           **(env_extra or {})}
+    return subprocess.run([PLUGIN, *args], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_served_run_writes_what_a_local_run_writes(server, prusa_short, tmp_path):
+    remote, local = tmp_path / "remote.gcode", tmp_path / "local.gcode"
+    remote.write_bytes(prusa_short.read_bytes())
+    local.write_bytes(prusa_short.read_bytes())
+    # the real entry point, as a slicer starts it; a relative path resolves in the caller's cwd
+    r = _plugin(["--nozzle", ELLIPSE, "remote.gcode"], address=server.address, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    served = server.stop()
+    assert served.requests == 1 and served.reason == "asked to stop"
+    loc = _plugin(["--nozzle", ELLIPSE, "local.gcode"], address="off", cwd=tmp_path)
+    assert loc.returncode == 0, loc.stderr
+    assert remote.read_bytes() == local.read_bytes()
+    assert already_processed(remote.read_bytes())
+    assert r.stdout.replace("remote.gcode", "X").split(";")[:3] == \
+        loc.stdout.replace("local.gcode", "X").split(";")[:3]
+
+
+def test_served_error_is_the_same_paragraph_and_leaves_the_file(server, prusa_short, tmp_path):
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    r = _plugin(["--nozzle", "ellipse:major=0.8", str(path)], address=server.address,
+                cwd=tmp_path)
+    loc = _plugin(["--nozzle", "ellipse:major=0.8", str(path)], address="off", cwd=tmp_path)
+    assert r.returncode == loc.returncode == 1
+    assert r.stderr == loc.stderr and r.stderr.startswith("printability: error:")
+    assert path.read_bytes() == prusa_short.read_bytes()
+
+
+def test_request_environment_is_used_and_then_restored(server, prusa_short, tmp_path,
+                                                       monkeypatch):
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    monkeypatch.delenv("SLIC3R_NOZZLE_DIAMETER", raising=False)
+    cwd = os.getcwd()
+    # no --nozzle: the default nozzle is the slicer's SLIC3R_NOZZLE_DIAMETER, from the request
+    res = run_remote(["postprocess", str(path)], cwd=str(tmp_path),
+                     environ={"SLIC3R_NOZZLE_DIAMETER": "0.6"}, address=server.address)
+    assert res is not None and res.rc == 0, res
+    assert b"; printability: nozzle = circle:d=0.6\n" in path.read_bytes()
+    # the request's variable and directory were the run's only
+    assert "SLIC3R_NOZZLE_DIAMETER" not in os.environ
+    assert os.getcwd() == cwd
+
+
+def test_changed_source_makes_the_server_decline_and_stop(private, prusa_short, tmp_path):
+    watched = tmp_path / "pkg"
+    watched.mkdir()
+    (watched / "mod.py").write_text("x = 1\n")
+    s = Server(private / "s.sock", watch=[watched])
+    (watched / "mod.py").write_text("x = 22\n")
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    assert run_remote(["postprocess", str(path)], cwd=str(tmp_path), environ={},
+                      address=s.address) is None
+    assert path.read_bytes() == prusa_short.read_bytes()  # declined before running
+    res = s.stop()
+    assert res.reason == "the installed source changed" and res.requests == 0
+    assert not os.path.exists(s.address)
+
+
+def test_other_version_is_declined(server):
+    reply = call(server.address, {"op": "status", "version": "0.0.0-other"}, timeout=5)
+    assert reply == {"ok": False, "reason": f"this server is printability {__version__} "
+                                           f"(protocol 1)"}
+    assert server_status(server.address)["pid"] == os.getpid()
+
+
+def test_broken_server_falls_back_to_a_local_run(private, prusa_short, tmp_path, monkeypatch):
+    address = str(private / "s.sock")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(address)
+    listener.listen(1)
+
+    def accept_and_hang_up():
+        conn, _ = listener.accept()
+        conn.recv(10)
+        conn.close()
+
+    t = threading.Thread(target=accept_and_hang_up, daemon=True)
+    t.start()
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    monkeypatch.setenv("PRINTABILITY_SERVER", address)
+    monkeypatch.setenv("SLIC3R_NOZZLE_DIAMETER", "0.4")
+    assert plugin_main(["--nozzle", ELLIPSE, str(path)]) == 0
+    t.join(10)
+    listener.close()
+    assert already_processed(path.read_bytes())
+
+
+def test_no_server_means_no_remote_run(private, tmp_path):
+    assert run_remote(["--version"], cwd=str(tmp_path), environ={},
+                      address=str(private / "none.sock")) is None
+    # a socket file nobody listens on (a killed server's) is no server either
+    stale = private / "stale.sock"
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.bind(str(stale))
+    s.close()
+    assert run_remote(["--version"], cwd=str(tmp_path), environ={}, address=str(stale)) is None
+    # ... and a new server takes its place
+    srv = Server(stale)
+    assert server_status(str(stale)) is not None
+    srv.stop()
+
+
+def test_one_server_per_address(server):
+    with pytest.raises(PrintabilityOSError, match="already running"):
+        serve(address=server.address, warm=False)
+
+
+def test_directory_open_to_others_is_refused(tmp_path):
+    open_dir = tmp_path / "open"
+    open_dir.mkdir()
+    open_dir.chmod(0o755)
+    with pytest.raises(ServerAddressError, match="mode 0700"):
+        secure_dir(str(open_dir), create=False)
+    with pytest.raises(PrintabilityOSError, match="private directory"):
+        serve(address=str(open_dir / "s.sock"), warm=False)
+    assert call(str(open_dir / "s.sock"), {"op": "status"}, timeout=1) is None
+
+
+def test_idle_server_stops(private):
+    res = serve(address=str(private / "s.sock"), warm=False, idle_timeout=0.2)
+    assert res.reason == "idle for 0.2 s" and res.requests == 0
+    assert not (private / "s.sock").exists()
+
+
+def test_address_and_forwarded_environment(tmp_path):
+    assert default_address({"PRINTABILITY_SERVER": "off"}) is None
+    assert default_address({"PRINTABILITY_SERVER": "/x/s.sock"}) == "/x/s.sock"
+    runtime = tmp_path / "run"
+    runtime.mkdir()
+    assert default_address({"XDG_RUNTIME_DIR": str(runtime)}) == \
+        str(runtime / "printability" / f"serve-{__version__}.sock")
+    env = {"SLIC3R_LAYER_HEIGHT": "0.2", "PRINTABILITY_POSTPROCESS_ARGS": "-q", "HOME": "/h",
+           "PRINTABILITY_SERVER": "/x"}
+    assert forwarded_env(env) == {"SLIC3R_LAYER_HEIGHT": "0.2",
+                                  "PRINTABILITY_POSTPROCESS_ARGS": "-q"}
+
+
+def test_cli_status_and_stop_without_server(private):
+    for flag in ("--status", "--stop"):
+        r = subprocess.run([CLI, "serve", "--socket", str(private / "s.sock"), flag],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 1 and "no server at" in r.stdout
+
+
+def test_cli_serves_and_stops(private):
+    address = str(private / "s.sock")
+    proc = subprocess.Popen([CLI, "serve", "--socket", address, "--no-warm"],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert "listening on" in proc.stderr.readline()
+        r = subprocess.run([CLI, "serve", "--socket", address, "--status"],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0 and f"pid {proc.pid}" in r.stdout
+        r = subprocess.run([CLI, "serve", "--socket", address, "--stop"],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0 and "stopped" in r.stdout
+        assert proc.wait(60) == 0
+    finally:
+        proc.kill()
+    assert not os.path.exists(address)
