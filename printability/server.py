@@ -195,12 +195,17 @@ def serve(
     sock = _bind(address)
     requests, reason = 0, "stopped"
 
+    terminated = []
+
     def _terminate(signum, _frame):
+        # the CLI turns KeyboardInterrupt into exit code 130 inside a run: the flag makes the
+        # server stop all the same, and tells the client to run it itself
+        terminated.append(signum)
         raise KeyboardInterrupt
 
-    previous = None
+    previous = {}
     if _in_main_thread():
-        previous = signal.signal(signal.SIGTERM, _terminate)
+        previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         say(f"listening on {address} (pid {os.getpid()})")
         if warm:
@@ -225,6 +230,8 @@ def serve(
                     continue
                 conn.settimeout(None)
                 reply, stop = _handle(req, stamp, roots)
+                if terminated:
+                    reply, stop = {"ok": False, "reason": "the server is stopping"}, "terminated"
                 if reply.get("ok") and "rc" in reply:
                     requests += 1
                     say(f"request {requests}: {' '.join(req['argv'])} -> exit {reply['rc']}")
@@ -234,13 +241,13 @@ def serve(
                     reason = stop
                     break
     except KeyboardInterrupt:
-        reason = "interrupted"
+        reason = "terminated" if terminated else "interrupted"
     finally:
         sock.close()
         with contextlib.suppress(OSError):
             os.unlink(address)
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     say(f"stopped ({reason}) after {requests} requests")
     return ServeResult(requests, reason, time.perf_counter() - t0)
 

@@ -246,3 +246,17 @@ def test_cli_serves_and_stops(private):
     finally:
         proc.kill()
     assert not os.path.exists(address)
+
+
+def test_cli_server_stops_on_sigterm_and_removes_its_socket(private):
+    address = str(private / "s.sock")
+    proc = subprocess.Popen([CLI, "serve", "--socket", address, "--no-warm"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert "listening on" in proc.stderr.readline()
+        proc.terminate()
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0 and "(terminated)" in out
+    assert not os.path.exists(address)
