@@ -9,7 +9,10 @@ geometry. The pieces:
 - :mod:`machine_io.transport` — opening a device, pty or pyserial URL; fast line reads;
 - :mod:`machine_io.host` — the protocol state machine: handshake, capabilities,
   ping-pong and send-ahead streaming, resends, timeouts, pause/resume/cancel,
-  reconnect and resume;
+  reconnect and resume; :class:`Host` is assembled from
+  :mod:`machine_io.connection`, :mod:`machine_io.resend`,
+  :mod:`machine_io.streaming`, :mod:`machine_io.interrupts` and
+  :mod:`machine_io.reporting`;
 - :mod:`machine_io.display` — a rich progress bar.
 
 >>> from machine_io import Host, HostConfig, load_program   # doctest: +SKIP

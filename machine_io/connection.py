@@ -1,0 +1,184 @@
+"""The host's side of the link outside the stream: port, banner, handshake, queries.
+
+Opening and closing the port, waiting for the ``start`` banner, the ``M110``
+line-number handshake, unnumbered queries (``M115``, ``M114``), reading and
+writing lines through the transcript, and event notes. Mixed into
+:class:`machine_io.host.Host`, whose docstring states the protocol's promises.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable
+
+from machine_io.protocol import (
+    FirmwareInfo,
+    Reply,
+    frame,
+    parse_firmware_info,
+    parse_position,
+    parse_reply,
+    parse_temperatures,
+)
+from machine_io.transport import LineReader, open_port
+from printability.errors import PrinterError
+
+__all__ = ["ConnectionMixin"]
+
+
+class ConnectionMixin:
+    """Port, banner, handshake and queries of :class:`machine_io.host.Host`."""
+
+    # ----------------------------------------------------------------- connection
+    def open(self) -> None:
+        """Open the port (see :func:`machine_io.transport.open_port`)."""
+        self._port = open_port(self.port_name, baud=self.config.baud)
+        self._reader = LineReader(self._port)
+
+    def close(self) -> None:
+        """Close the port and the transcript."""
+        if self._port is not None:
+            with contextlib.suppress(Exception):
+                self._port.close()
+            self._port = None
+        self.transcript.close()
+
+    def connect(self) -> FirmwareInfo:
+        """Open the port, wait for the banner, synchronise line numbers, read capabilities.
+
+        Returns
+        -------
+        FirmwareInfo
+            Firmware name, capabilities (``Cap:`` lines) and axes (from M114).
+
+        Raises
+        ------
+        PrintabilityOSError
+            The port cannot be opened.
+        PrinterError
+            The printer does not answer the handshake.
+        """
+        if self._port is None:
+            self.open()
+        self._banner_seen = self._wait_banner(self.config.banner_timeout)
+        self._handshake()
+        m115 = self._query("M115", lambda r: r.kind in ("firmware", "cap"))
+        m114 = self._query("M114", lambda r: r.kind == "position")
+        position = None
+        for line in m114:
+            position = parse_position(line) or position
+        self.firmware = parse_firmware_info(m115, position)
+        self._note(f"connected to {self.firmware.name or 'an unnamed firmware'} on "
+                   f"{self.port_name}" + (" (after its start banner)" if self._banner_seen else ""))
+        return self.firmware
+
+    def _write(self, data: bytes) -> None:
+        self._reader.write(data)
+        self._bytes_sent += len(data)
+
+    def _readline(self, deadline: float) -> str | None:
+        raw = self._reader.readline(deadline)
+        if raw is None:
+            return None
+        text = raw.decode("utf-8", errors="replace").strip()
+        self.transcript.write("Recv", text)
+        return text
+
+    def _wait_banner(self, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while True:
+            line = self._readline(deadline)
+            if line is None:
+                return False
+            reply = parse_reply(line)
+            if reply.kind == "start":
+                # Drain the rest of the banner quickly (it arrives in one burst).
+                quiet = time.monotonic() + 0.3
+                while self._readline(quiet) is not None:
+                    quiet = time.monotonic() + 0.3
+                return True
+
+    def _handshake(self, number: int = 0) -> None:
+        """``M110 N<number>``: the next line the firmware expects is ``number + 1``."""
+        data = frame(number, f"M110 N{number}")
+        for attempt in range(1, self.config.handshake_attempts + 1):
+            self.transcript.write("Send", data.decode().strip())
+            self._write(data)
+            deadline = time.monotonic() + self.config.handshake_timeout
+            refused = False
+            while True:
+                line = self._readline(deadline)
+                if line is None:
+                    break
+                reply = parse_reply(line)
+                self._observe(reply)
+                if reply.kind in ("error", "resend"):
+                    # The M110 itself was refused (damaged on the wire): the ok that
+                    # follows a Resend is not the handshake's.
+                    refused = True
+                    continue
+                if reply.kind == "ok":
+                    # Let a late duplicate reply of an earlier attempt arrive and drop it.
+                    quiet = time.monotonic() + 0.05
+                    while self._readline(quiet) is not None:
+                        quiet = time.monotonic() + 0.05
+                    if refused and reply.number != number:
+                        break
+                    return
+                if reply.kind == "start":
+                    self._banner_seen = True
+                    break  # it reset on the way: ask again
+            self.transcript.write("Note", f"{'M110 refused' if refused else 'no reply to M110'} "
+                                          f"(attempt {attempt})")
+        raise PrinterError(
+            f"the printer on {self.port_name} did not answer (no reply to 'M110 N{number}' "
+            f"after {self.config.handshake_attempts} attempts of "
+            f"{self.config.handshake_timeout:g} s); nothing of the file was sent. Check that it "
+            f"is switched on, that the baud rate ({self.config.baud}) matches its firmware, "
+            f"and that no other program holds the port.")
+
+    def _query(self, command: str, wanted: Callable[[Reply], bool]) -> list[str]:
+        """Send an unnumbered query, collect the wanted reply lines up to its ``ok``."""
+        for _attempt in range(self.config.handshake_attempts):
+            self.transcript.write("Send", command)
+            self._write(command.encode() + b"\n")
+            got: list[str] = []
+            deadline = time.monotonic() + self.config.handshake_timeout
+            while True:
+                line = self._readline(deadline)
+                if line is None:
+                    break
+                reply = parse_reply(line)
+                self._observe(reply)
+                if wanted(reply):
+                    got.append(reply.text)
+                elif reply.kind == "ok":
+                    # Marlin puts the M114 report before the ok; some firmwares after it.
+                    if got:
+                        return got
+                    tail = time.monotonic() + 0.1
+                    while (extra := self._readline(tail)) is not None:
+                        r = parse_reply(extra)
+                        self._observe(r)
+                        if wanted(r):
+                            got.append(r.text)
+                    return got
+            if got:
+                return got
+        return []
+
+    def _observe(self, reply: Reply) -> None:
+        """Facts any reply may carry (temperatures)."""
+        if reply.kind in ("temperature", "ok") and "T:" in reply.text:
+            temps = parse_temperatures(reply.text)
+            if temps:
+                self.temperatures = temps
+
+    # ----------------------------------------------------------------- events
+    def _note(self, message: str) -> None:
+        self._events.append(message)
+        self.transcript.write("Note", message)
+        if self.on_event is not None:
+            self.on_event(message)
+
