@@ -289,7 +289,7 @@ def test_deep_in_sweep_only_where_the_edge_enters_the_footprint(nozzle):
     """The refusal shortcut of the remembered edges: where it says an edge has a piece
     deep in the swept ellipse, the footprint's polygon shrunk by far more than EPS holds
     a piece of that edge; and it says so for most edges crossing the move."""
-    from printability.motion.fastfit import _deep_in_sweep
+    from printability.motion._sweep import _deep_in_sweep
 
     rng = np.random.default_rng(3)
     (piece,) = convex_pieces(parse_nozzle(nozzle))

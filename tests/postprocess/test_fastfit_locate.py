@@ -1,4 +1,4 @@
-"""Point location in a bead union by the fused search (printability.motion.fastfit).
+"""Point location in a bead union by the fused search (printability.motion._point_location).
 
 The fused search first asks whether a point lies well within a bead's radius of its
 axis (``_near_axis``): a shortcut of the polygon test (``in_polygons``) that may only
@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from printability.motion._point_location import _AXIS, _locate, _near_axis
 from printability.motion.beadunion import bead_union, in_polygons
-from printability.motion.fastfit import _AXIS, _locate, _near_axis, boundary_grid, locator
+from printability.motion.fastfit import boundary_grid, locator
 
 TAU = 0.95e-3
 

@@ -1,0 +1,123 @@
+"""The edges of ∂G binned on a uniform grid, built once per layer target.
+
+The footprint tests (:mod:`printability.motion._covers`,
+:mod:`printability.motion._first_fits`) and the ray parity of
+:mod:`printability.motion._point_location` find the edges of ∂G near a footprint
+or a point through this grid instead of scanning ∂G: per cell, the edges whose
+bounding box overlaps it (CSR), ~1 mm cells, with each entry's edge also packed
+in one row of 8 for the scans. The grids of the last few targets are cached.
+Cells are found with :func:`printability.motion._kernels.cell_of`, the binning
+shared with :mod:`printability.motion.beadunion`.
+
+Coordinates in mm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from printability.motion._kernels import cell_of as _cell
+from printability.motion.beadunion import BeadUnion
+
+__all__ = ["boundary_grid"]
+
+
+_cache: list[tuple[BaseGeometry, tuple]] = []
+
+
+def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
+    """Edges of ∂G binned on a uniform grid (CSR), cached for the last few targets.
+
+    ``target`` is a shapely geometry or a :class:`~printability.motion.beadunion.BeadUnion`
+    (whose boundary edges are already computed).
+
+    Returns
+    -------
+    tuple
+        ``(ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, packed)``: edge
+        ends, for cell ``c = iy·nx + ix`` the edges ``items[start[c]:start[c+1]]``,
+        the grid origin, cell size and shape, and per entry of ``items`` its edge's
+        ends and box (:func:`_pack_edges`).
+    """
+    for g, grid in _cache:
+        if g is target:
+            return grid
+    if isinstance(target, BeadUnion):
+        ex0, ey0, ex1, ey1 = target.ex0, target.ey0, target.ex1, target.ey1
+    else:
+        parts = shapely.get_parts(shapely.boundary(target))
+        coords, which = shapely.get_coordinates(parts, return_index=True)
+        same = which[1:] == which[:-1]
+        a = coords[:-1][same]
+        b = coords[1:][same]
+        ex0, ey0, ex1, ey1 = (np.ascontiguousarray(v)
+                              for v in (a[:, 0], a[:, 1], b[:, 0], b[:, 1]))
+    if len(ex0):
+        x0, y0 = float(min(ex0.min(), ex1.min())), float(min(ey0.min(), ey1.min()))
+        w = float(max(ex0.max(), ex1.max())) - x0
+        hgt = float(max(ey0.max(), ey1.max())) - y0
+    else:
+        x0 = y0 = w = hgt = 0.0
+    # ~1 mm cells (a footprint spans a few), at most ~250 k of them
+    cell = max(1.0, math.sqrt(max(w * hgt, 1e-12) / 250_000.0))
+    nx = int(w // cell) + 1
+    ny = int(hgt // cell) + 1
+    start, items = _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny)
+    grid = (ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny,
+            _pack_edges(ex0, ey0, ex1, ey1, items))
+    _cache.insert(0, (target, grid))
+    del _cache[4:]
+    return grid
+
+
+@numba.njit(cache=True)
+def _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny):  # pragma: no cover
+    """CSR of the grid cells each edge's bounding box overlaps (two passes: count, fill)."""
+    count = np.zeros(nx * ny + 1, np.int64)
+    for pass_ in range(2):
+        if pass_ == 1:
+            for c in range(nx * ny):
+                count[c + 1] += count[c]
+            items = np.empty(count[nx * ny], np.int64)
+            fill = count[:-1].copy()
+        for e in range(len(ex0)):
+            ix0 = _cell(min(ex0[e], ex1[e]), x0, cell, nx)
+            ix1 = _cell(max(ex0[e], ex1[e]), x0, cell, nx)
+            iy0 = _cell(min(ey0[e], ey1[e]), y0, cell, ny)
+            iy1 = _cell(max(ey0[e], ey1[e]), y0, cell, ny)
+            for iy in range(iy0, iy1 + 1):
+                for ix in range(ix0, ix1 + 1):
+                    c = iy * nx + ix
+                    if pass_ == 0:
+                        count[c + 1] += 1
+                    else:
+                        items[fill[c]] = e
+                        fill[c] += 1
+    return count, items
+
+
+@numba.njit(cache=True)
+def _pack_edges(ex0, ey0, ex1, ey1, items):  # pragma: no cover
+    """Per entry of the grid's ``items``: its edge's x0, y0, x1, y1 and box (min x, max x,
+    min y, max y), one row of 8 (one cache line) read in turn as a cell is scanned."""
+    out = np.empty((len(items), 8))
+    for q in range(len(items)):
+        e = items[q]
+        ax = ex0[e]
+        ay = ey0[e]
+        bx = ex1[e]
+        by = ey1[e]
+        out[q, 0] = ax
+        out[q, 1] = ay
+        out[q, 2] = bx
+        out[q, 3] = by
+        out[q, 4] = min(ax, bx)
+        out[q, 5] = max(ax, bx)
+        out[q, 6] = min(ay, by)
+        out[q, 7] = max(ay, by)
+    return out

@@ -1,0 +1,152 @@
+"""Half-planes and ring of an ellipse or rectangle swept along a move; its refusal shortcut.
+
+A swept footprint is the intersection of half-planes ``cu·x + su·y ≤ h`` in d
+directions turned with the move: :func:`_directions` gives the directions and
+the move's extent along them (shared by the candidates of a move),
+:func:`_offsets` the offsets of one piece at one orientation, and
+:func:`swept_kernel` the ring (where adjacent boundary lines cross). The fused
+kernel of :mod:`printability.motion._first_fits` calls the same two functions,
+so its half-planes are those of the ring to the last bit.
+
+:func:`_deep_in_sweep` (:func:`_sweep_frame`, then :func:`_deep_in_frame` per
+edge) is a sufficient test of refusal needing no half-plane, in the frame where
+the swept ellipse is the unit disk.
+
+Lengths in mm; orientations as cos/sin pairs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from printability.motion._kernels import segments2 as _segments2
+
+__all__ = ["_deep_in_frame", "_deep_in_sweep", "_directions", "_offsets", "_sweep_frame",
+           "swept_kernel"]
+
+
+_DEEP = 1e-3
+"""Relative margin of :func:`_deep_in_sweep`: orders above rounding, far below a footprint."""
+
+
+@numba.njit(cache=True)
+def _deep_in_sweep(ex0, ey0, ex1, ey1, sx, sy, a, b, cx, cy, rc, rs, c, s, sc):  # pragma: no cover
+    """Whether the edge [e0, e1] (relative to the move's start) has a piece well inside the
+    ellipse (semi-axes ``a``, ``b``, centre ``cx``, ``cy``, rotation ``rc``, ``rs``) at
+    orientation ``c``, ``s`` scaled by ``sc`` swept from 0 to ``(sx, sy)``.
+
+    In the frame where that ellipse is the unit disk the swept set is the set of points
+    within 1 of a segment; an edge within ``1 - _DEEP`` of it has a piece longer than
+    ``_DEEP / 2 · min(a, b) · sc`` (or the whole edge) more than that deep in the swept
+    set, hence in every polygon around it, far beyond ``EPS``. A sufficient test of
+    refusal, needing no half-plane: a rectangle holds the ellipse of its semi-axes.
+    """
+    m00, m01, m10, m11, qx, qy, tx, ty = _sweep_frame(sx, sy, a, b, cx, cy, rc, rs, c, s, sc)
+    return _deep_in_frame(ex0, ey0, ex1, ey1, m00, m01, m10, m11, qx, qy, tx, ty)
+
+
+@numba.njit(cache=True)
+def _sweep_frame(sx, sy, a, b, cx, cy, rc, rs, c, s, sc):  # pragma: no cover
+    """The frame of :func:`_deep_in_sweep`: its map ``M`` (row by row), the ellipse's centre
+    ``q`` and the segment's end ``t`` in it (one per footprint, shared by the edges tried)."""
+    # M = diag(1/a, 1/b) R(-rotation) R(-phi) / scale
+    m00 = (rc * c - rs * s) / (a * sc)
+    m01 = (rc * s + rs * c) / (a * sc)
+    m10 = (-rs * c - rc * s) / (b * sc)
+    m11 = (-rs * s + rc * c) / (b * sc)
+    qx = (rc * cx + rs * cy) / a
+    qy = (-rs * cx + rc * cy) / b
+    tx = m00 * sx + m01 * sy + qx
+    ty = m10 * sx + m11 * sy + qy
+    return m00, m01, m10, m11, qx, qy, tx, ty
+
+
+@numba.njit(cache=True)
+def _deep_in_frame(ex0, ey0, ex1, ey1, m00, m01, m10, m11, qx, qy, tx, ty):  # pragma: no cover
+    """:func:`_deep_in_sweep` given its :func:`_sweep_frame`."""
+    ax = m00 * ex0 + m01 * ey0
+    ay = m10 * ex0 + m11 * ey0
+    bx = m00 * ex1 + m01 * ey1
+    by = m10 * ex1 + m11 * ey1
+    lim = 1.0 - _DEEP
+    return _segments2(ax, ay, bx, by, qx, qy, tx, ty) < lim * lim
+
+
+@numba.njit(cache=True, _nrt=False)
+def _directions(cn, sn, cb, sb, p0x, p0y, p1x, p1y, cu, su, w):  # pragma: no cover
+    """Directions ``cu``, ``su`` of a move's half-planes and the move's extent ``w`` along them.
+
+    Independent of the orientation: the candidates of one move share them.
+    """
+    for j in range(len(cb)):
+        u = cn * cb[j] - sn * sb[j]
+        v = sn * cb[j] + cn * sb[j]
+        cu[j] = u
+        su[j] = v
+        w[j] = max(u * p0x + v * p0y, u * p1x + v * p1y)
+
+
+@numba.njit(cache=True, _nrt=False)
+def _offsets(kind, a, b, cx, cy, rc, rs, c0, s0, c1, s1, k, turning, scale, scaled, cu, su, w,
+             h):  # pragma: no cover
+    """Offsets ``h`` of the half-planes of an ellipse (kind 0) or rectangle (kind 1) swept.
+
+    The swept_kernel's arithmetic, shared with the fused tests so that their
+    half-planes are those of the ring, to the last bit.
+    """
+    for j in range(len(cu)):
+        u = cu[j]
+        v = su[j]
+        hv = 0.0
+        for end in range(2 if turning else 1):
+            c = c0 if end == 0 else c1
+            s = s0 if end == 0 else s1
+            ux = c * u + s * v  # u in the nozzle frame: R(-phi) u
+            uy = -s * u + c * v
+            base = ux * cx + uy * cy
+            vx = rc * ux + rs * uy  # u in the orifice's own axes
+            vy = -rs * ux + rc * uy
+            if kind == 0:
+                hh = base + math.sqrt((a * vx) ** 2 + (b * vy) ** 2)
+            else:
+                hh = base + a * abs(vx) + b * abs(vy)
+            hv = hh if end == 0 else max(hv, hh)
+        if turning:
+            hv = hv * k
+        if scaled:
+            hv = hv * scale
+        h[j] = hv + w[j]
+
+
+@numba.njit(cache=True)
+def swept_kernel(kind, a, b, cx, cy, rc, rs, p0, p1, cn, sn, cb, sb, c0, s0, c1, s1, k, scale,
+                 det, cu, su, h, ring):  # pragma: no cover
+    """Half-plane offsets ``h`` and ring of an ellipse (kind 0) or rectangle (kind 1) swept.
+
+    The same arithmetic, in the same order, as the numpy path of
+    :func:`printability.motion.footprints.swept_rings` (so the same rings to
+    the last bit), fused into one pass: numpy makes a dozen (n, 64)
+    temporaries per call, which cost more than the arithmetic. ``c1``/``s1``
+    (the end orientation, turning moves) are used when ``k`` is non-empty,
+    ``scale`` when non-empty; the directions ``cu``, ``su`` are filled from
+    the move's normal (``cn``, ``sn``) and the base directions (``cb``, ``sb``).
+    """
+    n, d = cu.shape
+    turning = len(k) > 0
+    scaled = len(scale) > 0
+    w = np.empty(d)
+    for i in range(n):
+        _directions(cn[i], sn[i], cb, sb, p0[i, 0], p0[i, 1], p1[i, 0], p1[i, 1], cu[i], su[i],
+                    w)
+        _offsets(kind, a, b, cx, cy, rc, rs, c0[i], s0[i], c1[i] if turning else 0.0,
+                 s1[i] if turning else 0.0, k[i] if turning else 1.0, turning,
+                 scale[i] if scaled else 1.0, scaled, cu[i], su[i], w, h[i])
+        for j in range(d):
+            jn = j + 1 if j + 1 < d else 0
+            ring[i, j, 0] = (h[i, j] * su[i, jn] - h[i, jn] * su[i, j]) / det
+            ring[i, j, 1] = (cu[i, j] * h[i, jn] - cu[i, jn] * h[i, j]) / det
+        ring[i, d, 0] = ring[i, 0, 0]
+        ring[i, d, 1] = ring[i, 0, 1]
