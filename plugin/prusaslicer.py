@@ -44,17 +44,14 @@ def build_argv(argv: list[str], environ: dict[str, str] | None = None) -> list[s
 def main(argv: list[str] | None = None) -> int:
     """Run ``printability postprocess`` the way a slicer calls a script; returns the exit code."""
     args = build_argv(sys.argv[1:] if argv is None else argv)
-    from printability.server_client import run_remote
+    from printability.server_client import emit, run_remote
 
     remote = run_remote(args, cwd=os.getcwd(), environ=os.environ)
     if remote is not None:
-        sys.stdout.write(remote.stdout)
-        sys.stderr.write(remote.stderr)
-        sys.stdout.flush()
-        return remote.rc
-    from printability.cli.main import main as cli_main
+        return emit(remote)
+    from printability.cli.main import run  # here, without asking the server again
 
-    return cli_main(args)
+    return run(args)
 
 
 if __name__ == "__main__":  # pragma: no cover

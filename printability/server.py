@@ -4,7 +4,7 @@ The ``printability-postprocess`` entry point first offers its run to this
 server (:func:`printability.server_client.run_remote`, where the address,
 the messages and the fall-back rule are documented) and runs locally only
 when there is none. The server runs each request as the command line would
-(:func:`printability.cli.main.main`), in its own process, one at a time in
+(:func:`printability.cli.main.run`), in its own process, one at a time in
 the order they arrive, with the request's working directory and its
 ``SLIC3R_*``/``PRINTABILITY_*`` variables, and returns the exit code and
 what the command printed. The output file is therefore byte for byte what a
@@ -88,7 +88,7 @@ def source_stamp(roots: Iterable[Path]) -> tuple[tuple[str, int, int], ...]:
 def _run_command(argv: list[str], cwd: str, env: dict[str, str]) -> tuple[int, str, str]:
     """Run the CLI in this process as a new process would, with the request's directory and
     variables; restore both afterwards."""
-    from printability.cli.main import main as cli_main
+    from printability.cli.main import run as cli_run  # not main: it would ask this server
 
     saved_cwd = os.getcwd()
     saved = {k: v for k, v in os.environ.items()
@@ -102,7 +102,7 @@ def _run_command(argv: list[str], cwd: str, env: dict[str, str]) -> tuple[int, s
         os.chdir(cwd)
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             try:
-                rc = cli_main(list(argv))
+                rc = cli_run(list(argv))
             except Exception:  # a bug: report it as the CLI would and keep serving
                 traceback.print_exc()
                 rc = 1

@@ -6,7 +6,8 @@ not the work: numba's import, set-up and cached-kernel loads alone are about
 1 s, numpy, shapely and typer another 0.3 s (see the README's performance
 table). ``printability serve`` pays that once and then runs each request in
 its warm process; :func:`run_remote` is what the ``printability-postprocess``
-entry point calls first. It uses the standard library only, so a client
+entry point and ``printability postprocess`` (so also the Cura shim, which runs
+it) call first. It uses the standard library only, so a client
 costs Python's own start and a socket round trip.
 
 Conventions, written once here and shared with :mod:`printability.server`:
@@ -43,6 +44,7 @@ import os
 import socket
 import stat
 import struct
+import sys
 import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -55,6 +57,7 @@ __all__ = [
     "ServerAddressError",
     "call",
     "default_address",
+    "emit",
     "forwarded_env",
     "recv_message",
     "run_remote",
@@ -214,3 +217,13 @@ def run_remote(argv: list[str], *, cwd: str, environ: Mapping[str, str],
     if not (isinstance(rc, int) and isinstance(out, str) and isinstance(err, str)):
         return None
     return RemoteResult(rc, out, err)
+
+
+def emit(result: RemoteResult) -> int:
+    """Print a served run's output as the run would have, on this process's streams; its
+    exit code."""
+    sys.stdout.write(result.stdout)
+    sys.stdout.flush()
+    sys.stderr.write(result.stderr)
+    sys.stderr.flush()
+    return result.rc

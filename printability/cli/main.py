@@ -17,7 +17,7 @@ import typer
 from printability import __version__
 from printability.errors import PrintabilityError
 
-__all__ = ["app", "main"]
+__all__ = ["app", "main", "run"]
 
 # Subcommand modules, in help order. Each defines register(app: typer.Typer).
 SUBCOMMANDS: tuple[str, ...] = (
@@ -67,6 +67,25 @@ def error_paragraph(exc: BaseException) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the process exit code.
+
+    ``postprocess`` is first offered to a running ``printability serve``
+    (:func:`printability.server_client.run_remote`: the same file, messages and
+    exit code, without the libraries' start), then run here by :func:`run`.
+    """
+    args = sys.argv[1:] if argv is None else list(argv)
+    if args[:1] == ["postprocess"]:
+        import os
+
+        from printability.server_client import emit, run_remote
+
+        remote = run_remote(args, cwd=os.getcwd(), environ=os.environ)
+        if remote is not None:
+            return emit(remote)
+    return run(args)
+
+
+def run(argv: list[str] | None = None) -> int:
+    """Run the CLI in this process; returns the process exit code.
 
     Typer (in standalone mode) prints usage errors itself and exits with 2;
     printability's own errors reach us as exceptions and become one paragraph

@@ -260,3 +260,14 @@ def test_cli_server_stops_on_sigterm_and_removes_its_socket(private):
         proc.kill()
     assert proc.returncode == 0 and "(terminated)" in out
     assert not os.path.exists(address)
+
+
+def test_cli_postprocess_is_served_too(server, prusa_short, tmp_path):
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    env = {**os.environ, "PRINTABILITY_SERVER": server.address, "SLIC3R_NOZZLE_DIAMETER": "0.4"}
+    r = subprocess.run([CLI, "postprocess", "--nozzle", ELLIPSE, str(path)], env=env,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert server.stop().requests == 1
+    assert already_processed(path.read_bytes())
