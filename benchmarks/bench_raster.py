@@ -39,7 +39,8 @@ from shapely.geometry import shape
 from printability.geometry import as_region
 from printability.machine import parse_machine
 from printability.mmc import _raster_kernels as rk
-from printability.mmc.raster import _erode3, _opening_pass, mmc_raster, prepare_raster
+from printability.mmc._raster_passes import _opening_pass
+from printability.mmc.raster import _erode3, mmc_raster, prepare_raster
 from printability.nozzle import parse_nozzle
 from printability.settings import Settings
 

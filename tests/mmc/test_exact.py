@@ -14,8 +14,8 @@ from printability.errors import InputError, NozzleTooLargeError
 from printability.geometry import rotation_matrix
 from printability.machine import parse_machine
 from printability.mmc import compute_mmc
+from printability.mmc._minkowski import _convex_pieces
 from printability.mmc.exact import (
-    _convex_pieces,
     minkowski_dilate,
     minkowski_erode,
     mmc_exact,

@@ -17,10 +17,9 @@ from printability.geometry import Grid, as_region
 from printability.machine import parse_machine
 from printability.mmc import _raster_kernels as rk
 from printability.mmc import compute_mmc
+from printability.mmc._raster_passes import _mask_runs, _opening_pass
 from printability.mmc.raster import (
     _erode3,
-    _mask_runs,
-    _opening_pass,
     mmc_raster,
     prepare_raster,
     rasterize_region,
