@@ -23,7 +23,7 @@ cube's first two layers). That second ratio is what a slicer's user waits for.
 
 Run::
 
-    python benchmarks/bench_postprocess.py            # every STL, each run 3 times (~8 min)
+    python benchmarks/bench_postprocess.py            # every STL, each run 3 times (~10 min)
     python benchmarks/bench_postprocess.py --quick    # the calibration cube and ThinWall
     python benchmarks/bench_postprocess.py --repeat 1 # one run of each (noisier)
 
@@ -35,6 +35,7 @@ Nothing here is asserted: the figures go in the README.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import shutil
 import subprocess
@@ -83,16 +84,37 @@ def first_layers(data: bytes, n: int) -> bytes:
     return data[:pos + 1]
 
 
-def plugin_run(path: Path, nozzle: str) -> tuple[float, float]:
-    """The plugin in a new process, as a slicer calls it (file rewritten in place);
-    (wall s, CPU s)."""
+def _process_cpu(pid: int | None) -> float:
+    """CPU seconds of a running process (Linux /proc); 0 without one."""
+    if pid is None:
+        return 0.0
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def plugin_run(path: Path, nozzle: str, *, server: str = "off",
+               server_pid: int | None = None) -> tuple[float, float]:
+    """The plugin in a new process, as a slicer calls it (file rewritten in place), handing
+    the run to the server at ``server`` if not "off"; (wall s, CPU s of the plugin process
+    and of the server)."""
     exe = Path(sys.executable).with_name("printability-postprocess")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "plugin.prusaslicer"]
-    c0 = _children_cpu()
+    c0 = _children_cpu() + _process_cpu(server_pid)
     t0 = time.perf_counter()
     subprocess.run([*cmd, "--nozzle", nozzle, "--machine", "ttr", str(path)], check=True,
-                   capture_output=True, cwd=ROOT)
-    return time.perf_counter() - t0, _children_cpu() - c0
+                   capture_output=True, cwd=ROOT, env={**os.environ, "PRINTABILITY_SERVER": server})
+    return time.perf_counter() - t0, _children_cpu() + _process_cpu(server_pid) - c0
+
+
+def start_server(address: str) -> subprocess.Popen:
+    """``printability serve`` at ``address``, returned once its kernels are loaded."""
+    cli = Path(sys.executable).with_name("printability")
+    proc = subprocess.Popen([str(cli), "serve", "--socket", address],
+                            stderr=subprocess.PIPE, text=True)
+    for line in proc.stderr:
+        if "kernels loaded" in line:
+            return proc
+    raise RuntimeError("printability serve did not start")
 
 
 def _fastest(runs) -> tuple[float, float]:
@@ -117,55 +139,79 @@ def main(argv: list[str] | None = None) -> int:
         sorted(p.name for p in DATA.glob("*.stl"))
     # warm up: imports and numba caches are paid once per process, not per file
     with tempfile.TemporaryDirectory() as tmp:
-        warm = Path(tmp) / "warm.gcode"
-        slice_part(exe, DATA / "CalibrationCube.stl", warm)
-        postprocess(warm.read_bytes()[:200_000], ELLIPSE)
-        # the plugin's start: a new process on the cube's first two layers (every kernel
-        # loaded, almost no work)
-        tiny = Path(tmp) / "two_layers.gcode"
-        two = first_layers(warm.read_bytes(), 2)
+        os.chmod(tmp, 0o700)
+        address = str(Path(tmp) / "serve.sock")
+        server = start_server(address)
+        try:
+            return _run(exe, names, Path(tmp), args, address, server)
+        finally:
+            server.terminate()
+            server.wait(30)
+
+
+def _run(exe: str, names: list[str], tmp: Path, args, address: str,
+         server: subprocess.Popen) -> int:
+    warm = tmp / "warm.gcode"
+    slice_part(exe, DATA / "CalibrationCube.stl", warm)
+    postprocess(warm.read_bytes()[:200_000], ELLIPSE)
+    # the plugin's start: a new process on the cube's first two layers (every kernel
+    # loaded, almost no work)
+    tiny = tmp / "two_layers.gcode"
+    two = first_layers(warm.read_bytes(), 2)
+    tiny.write_bytes(two)
+    plugin_run(tiny, ELLIPSE)  # the first run may write caches
+    rep = max(1, args.repeat)
+
+    def start_once(**kw):
         tiny.write_bytes(two)
-        plugin_run(tiny, ELLIPSE)  # the first run may write caches
-        def start_once():
-            tiny.write_bytes(two)
-            return plugin_run(tiny, ELLIPSE)
+        return plugin_run(tiny, ELLIPSE, **kw)
 
-        start_wall, start_cpu = _fastest(start_once() for _ in range(max(1, args.repeat)))
-        print(f"plugin start (new process, the cube's first two layers): {start_wall:.2f} s "
-              f"wall, {start_cpu:.2f} s CPU")
-        print(f"{'part':<24}{'lines':>8}{'slice s':>10}{'CPU':>7}"
-              f"{'ellipse s':>11}{'CPU':>7}{'ratio':>7}{'wall r':>7}{'lines/s':>10}{'vs AW':>7}"
-              f"{'round s':>9}{'lines/s':>10}{'split':>7}{'dropped':>8}"
-              f"{'plugin s':>10}{'CPU':>7}{'ratio':>7}{'wall r':>7}")
-        rep = max(1, args.repeat)
-        for name in names:
-            out = Path(tmp) / (Path(name).stem + ".gcode")
-            s_wall, s_cpu = _fastest(slice_part(exe, DATA / name, out) for _ in range(rep))
-            data = out.read_bytes()
-            runs = [postprocess(data, ELLIPSE) for _ in range(rep)]
-            e_wall, e_cpu = _fastest(r[:2] for r in runs)
-            res = runs[0][2]
-            r_wall, r_cpu = _fastest(postprocess(data, "circle:d=0.4")[:2] for _ in range(rep))
+    start_wall, start_cpu = _fastest(start_once() for _ in range(rep))
+    served = {"server": address, "server_pid": server.pid}
+    sv_wall, sv_cpu = _fastest(start_once(**served) for _ in range(rep))
+    print(f"plugin start (the cube's first two layers): new process {start_wall:.2f} s wall, "
+          f"{start_cpu:.2f} s CPU; served {sv_wall:.2f} s wall, {sv_cpu:.2f} s CPU")
+    print(f"{'part':<24}{'lines':>8}{'slice s':>10}{'CPU':>7}"
+          f"{'ellipse s':>11}{'CPU':>7}{'ratio':>7}{'wall r':>7}{'lines/s':>10}{'vs AW':>7}"
+          f"{'round s':>9}{'lines/s':>10}{'split':>7}{'dropped':>8}"
+          f"{'plugin s':>10}{'CPU':>7}{'ratio':>7}{'wall r':>7}"
+          f"{'served s':>10}{'CPU':>7}{'ratio':>7}{'wall r':>7}")
+    for name in names:
+        out = tmp / (Path(name).stem + ".gcode")
+        s_wall, s_cpu = _fastest(slice_part(exe, DATA / name, out) for _ in range(rep))
+        data = out.read_bytes()
+        runs = [postprocess(data, ELLIPSE) for _ in range(rep)]
+        e_wall, e_cpu = _fastest(r[:2] for r in runs)
+        res = runs[0][2]
+        r_wall, r_cpu = _fastest(postprocess(data, "circle:d=0.4")[:2] for _ in range(rep))
 
-            def plugin_once(out=out, data=data):
-                out.write_bytes(data)  # the plugin rewrites it in place
-                return plugin_run(out, ELLIPSE)
+        def plugin_once(out=out, data=data, **kw):
+            out.write_bytes(data)  # the plugin rewrites it in place
+            return plugin_run(out, ELLIPSE, **kw)
 
-            p_wall, p_cpu = _fastest(plugin_once() for _ in range(rep))
-            lines = res.lines_in
-            print(f"{name[:23]:<24}{lines:>8}{s_wall:>10.2f}{s_cpu:>7.2f}"
-                  f"{e_wall:>11.2f}{e_cpu:>7.2f}{e_cpu / max(s_cpu, 1e-9):>7.2f}"
-                  f"{e_wall / max(s_wall, 1e-9):>7.2f}"
-                  f"{lines / max(e_cpu, 1e-9):>10.0f}"
-                  f"{lines / max(e_cpu, 1e-9) / ARCWELDER_LINES_PER_S:>7.2f}"
-                  f"{r_wall:>9.2f}{lines / max(r_cpu, 1e-9):>10.0f}"
-                  f"{res.split_moves:>7}{res.dropped_moves:>8}"
-                  f"{p_wall:>10.2f}{p_cpu:>7.2f}{p_cpu / max(s_cpu, 1e-9):>7.2f}"
-                  f"{p_wall / max(s_wall, 1e-9):>7.2f}")
+        p_wall, p_cpu = _fastest(plugin_once() for _ in range(rep))
+        v_wall, v_cpu = _fastest(plugin_once(**served) for _ in range(rep))
+        if server.poll() is not None:
+            print("the server stopped (its source files changed?): the served figures are "
+                  "local runs", file=sys.stderr)
+            return 1
+        lines = res.lines_in
+        print(f"{name[:23]:<24}{lines:>8}{s_wall:>10.2f}{s_cpu:>7.2f}"
+              f"{e_wall:>11.2f}{e_cpu:>7.2f}{e_cpu / max(s_cpu, 1e-9):>7.2f}"
+              f"{e_wall / max(s_wall, 1e-9):>7.2f}"
+              f"{lines / max(e_cpu, 1e-9):>10.0f}"
+              f"{lines / max(e_cpu, 1e-9) / ARCWELDER_LINES_PER_S:>7.2f}"
+              f"{r_wall:>9.2f}{lines / max(r_cpu, 1e-9):>10.0f}"
+              f"{res.split_moves:>7}{res.dropped_moves:>8}"
+              f"{p_wall:>10.2f}{p_cpu:>7.2f}{p_cpu / max(s_cpu, 1e-9):>7.2f}"
+              f"{p_wall / max(s_wall, 1e-9):>7.2f}"
+              f"{v_wall:>10.2f}{v_cpu:>7.2f}{v_cpu / max(s_cpu, 1e-9):>7.2f}"
+              f"{v_wall / max(s_wall, 1e-9):>7.2f}")
     print("ratio = our CPU time / the slicer's CPU time for the same part (goal <= 1); "
           "wall r = the same for wall-clock times (both use threads); "
           f"vs AW = our lines/s (CPU) / ArcWelder's ~{ARCWELDER_LINES_PER_S:,} lines/s; "
-          "plugin = a new printability-postprocess process per file, as the slicer runs it")
+          "plugin = a new printability-postprocess process per file, as the slicer runs it; "
+          "served = the same with `printability serve` running (plugin + server CPU)")
     return 0
 
 
