@@ -11,7 +11,9 @@ what the command printed. The output file is therefore byte for byte what a
 local run writes, and an error is the same one paragraph with exit code 1.
 
 It declines (and the client runs locally) when the client's version is not
-its own, and it declines and stops when any source file of the installed
+its own, when a file the command names is not the one the client sees (same
+device, inode, size and time: a sandbox or container with its own /tmp), and
+for any command but ``postprocess``; it declines and stops when any source file of the installed
 packages changed since it started (an edited or upgraded install), so it
 never runs code other than what is on disk.
 
@@ -40,6 +42,7 @@ from printability.server_client import (
     ServerAddressError,
     call,
     default_address,
+    file_identities,
     recv_message,
     secure_dir,
     send_message,
@@ -121,7 +124,9 @@ def _run_command(argv: list[str], cwd: str, env: dict[str, str]) -> tuple[int, s
 def _valid_run(req: dict) -> bool:
     return (isinstance(req.get("argv"), list) and all(isinstance(a, str) for a in req["argv"])
             and isinstance(req.get("cwd"), str) and isinstance(req.get("env"), dict)
-            and all(isinstance(k, str) and isinstance(v, str) for k, v in req["env"].items()))
+            and all(isinstance(k, str) and isinstance(v, str) for k, v in req["env"].items())
+            and isinstance(req.get("files"), dict)
+            and all(isinstance(k, str) and isinstance(v, list) for k, v in req["files"].items()))
 
 
 def _bind(address: str) -> socket.socket:
@@ -272,6 +277,11 @@ def _handle(req: dict, stamp: tuple, roots: list[Path]) -> tuple[dict, str | Non
         return {"ok": True}, "asked to stop"
     if op != "run" or not _valid_run(req):
         return {"ok": False, "reason": "expected a run, status or stop request"}, None
+    if req["argv"][:1] != ["postprocess"]:
+        return {"ok": False, "reason": "this server only runs postprocess"}, None
+    for arg, ident in req["files"].items():
+        if file_identities([arg], req["cwd"]).get(arg) != ident:
+            return {"ok": False, "reason": f"{arg}: not the caller's file here"}, None
     if source_stamp(roots) != stamp:
         return ({"ok": False, "reason": "the installed source changed since the server "
                                         "started"}, "the installed source changed")

@@ -27,12 +27,15 @@ Messages
     its length (4 bytes, big-endian). A request carries ``protocol``,
     ``version`` and ``op``: ``run`` (with ``argv``, ``cwd`` and ``env``, the
     caller's ``SLIC3R_*`` and ``PRINTABILITY_*`` variables), ``status`` or
-    ``stop``. The reply to a run is ``{"ok": true, "rc", "stdout",
+    ``stop``; a run also lists the identity of each file its arguments name
+    (:func:`file_identities`), and only ``postprocess`` runs are served. The
+    reply to a run is ``{"ok": true, "rc", "stdout",
     "stderr"}``, or ``{"ok": false, "reason"}`` when the server declines (an
     other version, or its source files changed since it started).
 Falling back
     Whenever no reply comes (no server, a refused or broken connection, a
-    decline), the caller runs the command itself. That is always safe: the
+    decline, which includes a server that does not see the caller's files as
+    the caller does), the caller runs the command itself. That is always safe: the
     server replaces files atomically, and a file it did finish is marked as
     processed, so running again leaves it as it is.
 """
@@ -58,6 +61,7 @@ __all__ = [
     "call",
     "default_address",
     "emit",
+    "file_identities",
     "forwarded_env",
     "recv_message",
     "run_remote",
@@ -189,6 +193,30 @@ def call(address: str, request: Mapping[str, object], *, timeout: float | None) 
         sock.close()
 
 
+def _identity(path: str) -> list[int] | None:
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    if not stat.S_ISREG(st.st_mode):
+        return None
+    return [st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns]
+
+
+def file_identities(argv: list[str], cwd: str) -> dict[str, list[int]]:
+    """(device, inode, size, mtime ns) of every argument naming a regular file (relative to
+    ``cwd``): the server runs only if it sees the same files (a sandbox or container with
+    its own /tmp would not), otherwise the caller does."""
+    out = {}
+    for arg in argv:
+        if arg.startswith("-") or arg in out:
+            continue
+        ident = _identity(os.path.join(cwd, arg))
+        if ident is not None:
+            out[arg] = ident
+    return out
+
+
 def run_remote(argv: list[str], *, cwd: str, environ: Mapping[str, str],
                address: str | None = None) -> RemoteResult | None:
     """Run the ``printability`` command ``argv`` on the server; ``None`` when the caller must
@@ -210,7 +238,8 @@ def run_remote(argv: list[str], *, cwd: str, environ: Mapping[str, str],
     if address is None:
         return None
     reply = call(address, {"op": "run", "argv": list(argv), "cwd": cwd,
-                           "env": forwarded_env(environ)}, timeout=None)
+                           "env": forwarded_env(environ), "files": file_identities(argv, cwd)},
+                 timeout=None)
     if not reply or reply.get("ok") is not True:
         return None
     rc, out, err = reply.get("rc"), reply.get("stdout"), reply.get("stderr")

@@ -20,6 +20,7 @@ from printability.server_client import (
     ServerAddressError,
     call,
     default_address,
+    file_identities,
     forwarded_env,
     run_remote,
     secure_dir,
@@ -271,3 +272,23 @@ def test_cli_postprocess_is_served_too(server, prusa_short, tmp_path):
     assert r.returncode == 0, r.stderr
     assert server.stop().requests == 1
     assert already_processed(path.read_bytes())
+
+
+def test_server_declines_files_it_does_not_see_as_the_caller_does(server, prusa_short,
+                                                                  tmp_path):
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    files = file_identities(["postprocess", str(path), "--nozzle", ELLIPSE], str(tmp_path))
+    assert list(files) == [str(path)]
+    base = {"op": "run", "argv": ["postprocess", str(path)], "cwd": str(tmp_path), "env": {}}
+    # another inode under the same name (a sandbox's own /tmp, say): the caller runs it
+    other = dict(files)
+    other[str(path)] = [*files[str(path)][:1], files[str(path)][1] + 1, *files[str(path)][2:]]
+    reply = call(server.address, {**base, "files": other}, timeout=60)
+    assert reply["ok"] is False and "not the caller's file" in reply["reason"]
+    # only postprocess is served
+    reply = call(server.address, {**base, "argv": ["analyze", str(path)], "files": files},
+                 timeout=60)
+    assert reply == {"ok": False, "reason": "this server only runs postprocess"}
+    assert path.read_bytes() == prusa_short.read_bytes()
+    assert server.stop().requests == 0
