@@ -21,7 +21,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from printability.motion._kernels import cell_of as _cell
+from printability.motion._kernels import bin_boxes
 from printability.motion.beadunion import BeadUnion
 
 __all__ = ["boundary_grid"]
@@ -67,38 +67,13 @@ def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
     cell = max(1.0, math.sqrt(max(w * hgt, 1e-12) / 250_000.0))
     nx = int(w // cell) + 1
     ny = int(hgt // cell) + 1
-    start, items = _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny)
+    start, items = bin_boxes(np.minimum(ex0, ex1), np.minimum(ey0, ey1), np.maximum(ex0, ex1),
+                             np.maximum(ey0, ey1), x0, y0, cell, nx, ny)
     grid = (ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny,
             _pack_edges(ex0, ey0, ex1, ey1, items))
     _cache.insert(0, (target, grid))
     del _cache[4:]
     return grid
-
-
-@numba.njit(cache=True)
-def _bin_edges(ex0, ey0, ex1, ey1, x0, y0, cell, nx, ny):  # pragma: no cover
-    """CSR of the grid cells each edge's bounding box overlaps (two passes: count, fill)."""
-    count = np.zeros(nx * ny + 1, np.int64)
-    for pass_ in range(2):
-        if pass_ == 1:
-            for c in range(nx * ny):
-                count[c + 1] += count[c]
-            items = np.empty(count[nx * ny], np.int64)
-            fill = count[:-1].copy()
-        for e in range(len(ex0)):
-            ix0 = _cell(min(ex0[e], ex1[e]), x0, cell, nx)
-            ix1 = _cell(max(ex0[e], ex1[e]), x0, cell, nx)
-            iy0 = _cell(min(ey0[e], ey1[e]), y0, cell, ny)
-            iy1 = _cell(max(ey0[e], ey1[e]), y0, cell, ny)
-            for iy in range(iy0, iy1 + 1):
-                for ix in range(ix0, ix1 + 1):
-                    c = iy * nx + ix
-                    if pass_ == 0:
-                        count[c + 1] += 1
-                    else:
-                        items[fill[c]] = e
-                        fill[c] += 1
-    return count, items
 
 
 @numba.njit(cache=True)

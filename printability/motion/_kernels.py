@@ -9,8 +9,9 @@ from __future__ import annotations
 import math
 
 import numba
+import numpy as np
 
-__all__ = ["cell_of", "point_segment2", "segments2"]
+__all__ = ["bin_boxes", "cell_of", "point_segment2", "segments2"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -49,3 +50,30 @@ def segments2(ax, ay, bx, by, cx, cy, dx, dy):  # pragma: no cover
         return 0.0
     return min(point_segment2(ax, ay, cx, cy, dx, dy), point_segment2(bx, by, cx, cy, dx, dy),
                point_segment2(cx, cy, ax, ay, bx, by), point_segment2(dx, dy, ax, ay, bx, by))
+
+
+@numba.njit(cache=True, nogil=True)
+def bin_boxes(lo_x, lo_y, hi_x, hi_y, x0, y0, cell, nx, ny):  # pragma: no cover
+    """CSR ``(start, items)`` of the grid cells each box overlaps: box ``i`` is listed, in
+    the order of ``i``, in every cell ``iy·nx + ix`` its [lo, hi] range reaches
+    (:func:`cell_of`). Two passes (count, fill); O(boxes + their cells)."""
+    count = np.zeros(nx * ny + 1, np.int64)
+    items = np.empty(0, np.int64)
+    fill = np.empty(0, np.int64)
+    for pass_ in range(2):
+        if pass_ == 1:
+            for c in range(nx * ny):
+                count[c + 1] += count[c]
+            items = np.empty(count[nx * ny], np.int64)
+            fill = count[:-1].copy()
+        for i in range(len(lo_x)):
+            for iy in range(cell_of(lo_y[i], y0, cell, ny), cell_of(hi_y[i], y0, cell, ny) + 1):
+                for ix in range(cell_of(lo_x[i], x0, cell, nx),
+                                cell_of(hi_x[i], x0, cell, nx) + 1):
+                    c = iy * nx + ix
+                    if pass_ == 0:
+                        count[c + 1] += 1
+                    else:
+                        items[fill[c]] = i
+                        fill[c] += 1
+    return count, items

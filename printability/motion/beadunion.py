@@ -63,6 +63,7 @@ import numpy as np
 import shapely
 
 from printability.errors import InputError
+from printability.motion._kernels import bin_boxes as _bin_boxes
 from printability.motion._kernels import cell_of as _cell
 from printability.motion._kernels import point_segment2 as _point_segment2
 from printability.motion._kernels import segments2 as _segments2
@@ -315,32 +316,8 @@ def _grid(box: np.ndarray) -> tuple:
     cell = max(0.25, math.sqrt(max(w * hgt, 1e-12) / len(box)))
     nx = int(w // cell) + 1
     ny = int(hgt // cell) + 1
-    start, items = _bin(box, x0, y0, cell, nx, ny)
+    start, items = _bin_boxes(box[:, 0], box[:, 1], box[:, 2], box[:, 3], x0, y0, cell, nx, ny)
     return start, items, x0, y0, cell, nx, ny
-
-
-@numba.njit(cache=True, nogil=True)
-def _bin(box, x0, y0, cell, nx, ny):  # pragma: no cover
-    count = np.zeros(nx * ny + 1, np.int64)
-    items = np.empty(0, np.int64)
-    fill = np.empty(0, np.int64)
-    for pass_ in range(2):
-        if pass_ == 1:
-            for c in range(nx * ny):
-                count[c + 1] += count[c]
-            items = np.empty(count[nx * ny], np.int64)
-            fill = count[:-1].copy()
-        for i in range(len(box)):
-            for iy in range(_cell(box[i, 1], y0, cell, ny), _cell(box[i, 3], y0, cell, ny) + 1):
-                for ix in range(_cell(box[i, 0], x0, cell, nx),
-                                _cell(box[i, 2], x0, cell, nx) + 1):
-                    c = iy * nx + ix
-                    if pass_ == 0:
-                        count[c + 1] += 1
-                    else:
-                        items[fill[c]] = i
-                        fill[c] += 1
-    return count, items
 
 
 @numba.njit(cache=True, nogil=True)
