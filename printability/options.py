@@ -27,6 +27,7 @@ __all__ = [
     "MACHINE_KINDS",
     "NOZZLE_KINDS",
     "REGISTRIES",
+    "SERVER_POLICIES",
     "SIM_CLOCKS",
     "SOURCE_FORMATS",
     "STREAM_MODES",
@@ -198,6 +199,14 @@ E_POLICIES = _reg(
     keep="keep the slicer's E (volume per mm as planned) whatever width the nozzle lays",
 )
 
+SERVER_POLICIES = _reg(
+    "server policy",
+    use="hand the run to a running `printability serve`, else run here",
+    start="the same; when no server is running, start one in the background (it stops after "
+    "15 idle minutes) and run here",
+    off="always run here",
+)
+
 BEAD_MODELS = _reg(
     "bead model",
     rounded="rectangle with semicircular ends, area h(w - h) + pi h^2/4 (Slic3r/PrusaSlicer)",
@@ -221,5 +230,6 @@ REGISTRIES: dict[str, Registry] = {
         FAULT_KINDS,
         ENDSTOP_POLICIES,
         SIM_CLOCKS,
+        SERVER_POLICIES,
     )
 }

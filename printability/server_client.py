@@ -32,6 +32,11 @@ Messages
     reply to a run is ``{"ok": true, "rc", "stdout",
     "stderr"}``, or ``{"ok": false, "reason"}`` when the server declines (an
     other version, or its source files changed since it started).
+Policy
+    ``postprocess --server use`` (the default) hands the run over when a
+    server answers; ``--server start`` also starts one in the background when
+    none is running (this run is done here), so the next exports are served;
+    ``--server off`` (or ``PRINTABILITY_SERVER=off``) never hands over.
 Falling back
     Whenever no reply comes (no server, a refused or broken connection, a
     decline, which includes a server that does not see the caller's files as
@@ -48,13 +53,14 @@ import socket
 import stat
 import struct
 import sys
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 from printability import __version__
+from printability.options import SERVER_POLICIES
 
 __all__ = [
+    "IDLE_TIMEOUT",
     "PROTOCOL",
     "RemoteResult",
     "ServerAddressError",
@@ -67,6 +73,8 @@ __all__ = [
     "run_remote",
     "secure_dir",
     "send_message",
+    "server_policy",
+    "start_in_background",
 ]
 
 PROTOCOL = 1
@@ -121,6 +129,8 @@ def default_address(environ: Mapping[str, str] | None = None) -> str | None:
     if runtime and os.path.isdir(runtime):
         base = os.path.join(runtime, "printability")
     else:
+        import tempfile
+
         uid = os.getuid() if hasattr(os, "getuid") else 0
         base = os.path.join(tempfile.gettempdir(), f"printability-{uid}")
     return os.path.join(base, f"serve-{__version__}.sock")
@@ -217,6 +227,53 @@ def file_identities(argv: list[str], cwd: str) -> dict[str, list[int]]:
     return out
 
 
+def server_policy(argv: list[str], environ: Mapping[str, str]) -> str:
+    """The ``--server`` choice of a ``postprocess`` command line (the last one given; see
+    :data:`printability.options.SERVER_POLICIES`), ``off`` when ``PRINTABILITY_SERVER`` is
+    ``off``. An unknown value counts as ``off``: the local run then reports it."""
+    if environ.get("PRINTABILITY_SERVER", "").lower() == "off":
+        return "off"
+    choice = "use"
+    for i, arg in enumerate(argv):
+        if arg == "--":
+            break
+        if arg == "--server" and i + 1 < len(argv):
+            choice = argv[i + 1]
+        elif arg.startswith("--server="):
+            choice = arg.split("=", 1)[1]
+    choice = choice.strip().lower()
+    return choice if choice in SERVER_POLICIES.choices else "off"
+
+
+IDLE_TIMEOUT = 900.0
+"""Seconds without a request after which a server started by ``--server start`` stops."""
+
+
+def start_in_background(address: str) -> bool:
+    """Start ``printability serve`` at ``address`` as a detached process (its own session,
+    output to ``serve.log`` beside the socket, stopping after :data:`IDLE_TIMEOUT` idle
+    seconds); whether it was started. Its kernels load on its first request (the caller's
+    run, just done here, has them compiled and cached)."""
+    import subprocess
+
+    try:
+        folder = secure_dir(os.path.dirname(address) or ".", create=True)
+        log = open(os.path.join(folder, "serve.log"), "ab")
+    except OSError:
+        return False
+    try:
+        subprocess.Popen(
+            [sys.executable, "-m", "printability", "serve", "--socket", address,
+             "--idle-timeout", f"{IDLE_TIMEOUT:g}", "--no-warm"],
+            stdin=subprocess.DEVNULL, stdout=log, stderr=log, close_fds=True,
+            start_new_session=True, cwd=folder)
+    except OSError:
+        return False
+    finally:
+        log.close()
+    return True
+
+
 def run_remote(argv: list[str], *, cwd: str, environ: Mapping[str, str],
                address: str | None = None) -> RemoteResult | None:
     """Run the ``printability`` command ``argv`` on the server; ``None`` when the caller must
@@ -235,7 +292,11 @@ def run_remote(argv: list[str], *, cwd: str, environ: Mapping[str, str],
         The socket (default: :func:`default_address` of ``environ``).
     """
     address = default_address(environ) if address is None else address
-    if address is None:
+    policy = server_policy(argv, environ)
+    if address is None or policy == "off":
+        return None
+    if policy == "start" and not os.path.exists(address):
+        start_in_background(address)
         return None
     reply = call(address, {"op": "run", "argv": list(argv), "cwd": cwd,
                            "env": forwarded_env(environ), "files": file_identities(argv, cwd)},

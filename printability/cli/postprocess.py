@@ -13,7 +13,7 @@ from pathlib import Path
 import typer
 
 from printability.cli.common import choices_help
-from printability.options import E_POLICIES, FEED_POLICIES
+from printability.options import E_POLICIES, FEED_POLICIES, SERVER_POLICIES
 
 __all__ = ["postprocess_command", "register"]
 
@@ -51,10 +51,16 @@ def postprocess_command(
         help="Ask the slicer to save the result under this name (written to "
              "<gcode>.output_name, PrusaSlicer >= 2.4)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
+    server: str = typer.Option(
+        "use", "--server",
+        help=choices_help(SERVER_POLICIES, "Hand the run to `printability serve`, which "
+                                           "skips the libraries' start.")),
 ) -> None:
     """Choose the nozzle angle of every extruding move so that nothing lands outside the part
     and the bead width matches the slicer's plan; keep every other line byte for byte."""
     from printability.postprocess import PostprocessOptions, postprocess_file
+
+    SERVER_POLICIES.check(server)  # the hand-over was decided before this (server_client)
 
     opts = PostprocessOptions(
         nozzle=nozzle, machine=machine, tolerance=tolerance,

@@ -7,6 +7,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,7 @@ from printability.server_client import (
     forwarded_env,
     run_remote,
     secure_dir,
+    server_policy,
 )
 
 ELLIPSE = "ellipse:major=0.8,minor=0.3"
@@ -292,3 +294,65 @@ def test_server_declines_files_it_does_not_see_as_the_caller_does(server, prusa_
     assert reply == {"ok": False, "reason": "this server only runs postprocess"}
     assert path.read_bytes() == prusa_short.read_bytes()
     assert server.stop().requests == 0
+
+
+@pytest.mark.parametrize(("argv", "env", "expected"), [
+    (["postprocess", "a.gcode"], {}, "use"),
+    (["postprocess", "--server", "start", "a.gcode"], {}, "start"),
+    (["postprocess", "--server=OFF", "a.gcode"], {}, "off"),
+    (["postprocess", "--server", "start", "--server", "use", "a.gcode"], {}, "use"),
+    (["postprocess", "--server", "start", "a.gcode"], {"PRINTABILITY_SERVER": "off"}, "off"),
+    (["postprocess", "--server", "bogus", "a.gcode"], {}, "off"),  # the local run says why
+    (["postprocess", "--", "--server", "start"], {}, "use"),
+])
+def test_server_policy(argv, env, expected):
+    assert server_policy(argv, env) == expected
+
+
+def test_server_off_is_never_served(server, prusa_short, tmp_path):
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    r = _plugin(["--server", "off", "--nozzle", ELLIPSE, str(path)], address=server.address,
+                cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert server.stop().requests == 0
+    assert already_processed(path.read_bytes())
+
+
+def test_unknown_server_policy_is_a_clear_error(prusa_short, tmp_path):
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    r = _plugin(["--server", "bogus", str(path)], address="off", cwd=tmp_path)
+    assert r.returncode == 1
+    assert "unknown server policy 'bogus'; expected one of: use, start, off" in r.stderr
+    assert path.read_bytes() == prusa_short.read_bytes()
+
+
+def test_server_start_starts_one_for_the_next_exports(private, prusa_short, tmp_path):
+    address = str(private / "s.sock")
+    first, second = tmp_path / "first.gcode", tmp_path / "second.gcode"
+    for p in (first, second):
+        p.write_bytes(prusa_short.read_bytes())
+    try:
+        # no server yet: this run is done here, and one is started in the background
+        r = _plugin(["--server", "start", "--nozzle", ELLIPSE, str(first)], address=address,
+                    cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert already_processed(first.read_bytes())
+        deadline = time.monotonic() + 120
+        while server_status(address) is None:
+            assert time.monotonic() < deadline, (private / "serve.log").read_text()
+            time.sleep(0.2)
+        r = _plugin(["--server", "start", "--nozzle", ELLIPSE, str(second)], address=address,
+                    cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert second.read_bytes() == first.read_bytes()
+    finally:
+        stop_server(address)
+    deadline = time.monotonic() + 60
+    while os.path.exists(address):
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    log = (private / "serve.log").read_text()
+    assert "request 1: postprocess --server start" in log and "idle-timeout" not in log
+    assert "(asked to stop) after 1 requests" in log
