@@ -279,6 +279,8 @@ def _handle(req: dict, stamp: tuple, roots: list[Path]) -> tuple[dict, str | Non
         return {"ok": False, "reason": "expected a run, status or stop request"}, None
     if req["argv"][:1] != ["postprocess"]:
         return {"ok": False, "reason": "this server only runs postprocess"}, None
+    if not os.path.isdir(req["cwd"]):
+        return {"ok": False, "reason": f"{req['cwd']}: no such directory here"}, None
     for arg, ident in req["files"].items():
         if file_identities([arg], req["cwd"]).get(arg) != ident:
             return {"ok": False, "reason": f"{arg}: not the caller's file here"}, None

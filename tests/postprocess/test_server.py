@@ -288,6 +288,10 @@ def test_server_declines_files_it_does_not_see_as_the_caller_does(server, prusa_
     other[str(path)] = [*files[str(path)][:1], files[str(path)][1] + 1, *files[str(path)][2:]]
     reply = call(server.address, {**base, "files": other}, timeout=60)
     assert reply["ok"] is False and "not the caller's file" in reply["reason"]
+    # nor a directory it does not have
+    reply = call(server.address, {**base, "cwd": str(tmp_path / "gone"), "files": {}},
+                 timeout=60)
+    assert reply["ok"] is False and "no such directory here" in reply["reason"]
     # only postprocess is served
     reply = call(server.address, {**base, "argv": ["analyze", str(path)], "files": files},
                  timeout=60)
