@@ -129,6 +129,20 @@ def _valid_run(req: dict) -> bool:
             and all(isinstance(k, str) and isinstance(v, list) for k, v in req["files"].items()))
 
 
+def _listening(address: str) -> bool:
+    """Whether a process listens at ``address`` (a connection is accepted into its backlog
+    even while it is busy)."""
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(5.0)
+        probe.connect(address)
+        return True
+    except OSError:
+        return False
+    finally:
+        probe.close()
+
+
 def _bind(address: str) -> socket.socket:
     try:
         secure_dir(os.path.dirname(address) or ".", create=True)
@@ -138,11 +152,10 @@ def _bind(address: str) -> socket.socket:
         raise PrintabilityOSError(f"server socket {address}: cannot create its directory: "
                                   f"{exc.strerror}") from None
     if os.path.exists(address):
-        status = call(address, {"op": "status"}, timeout=5.0)
-        if status is not None:
+        if _listening(address):  # (a server still warming up accepts only later)
             raise PrintabilityOSError(
-                f"server socket {address}: a server is already running there (pid "
-                f"{status.get('pid')}); stop it with `printability serve --stop` first")
+                f"server socket {address}: a server is already running there; stop it with "
+                f"`printability serve --stop` first")
         os.unlink(address)  # a stale socket file left by a server that was killed
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:

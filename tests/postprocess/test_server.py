@@ -353,10 +353,25 @@ def test_server_start_starts_one_for_the_next_exports(private, prusa_short, tmp_
         assert second.read_bytes() == first.read_bytes()
     finally:
         stop_server(address)
+    # the socket goes first, then the server logs its end
     deadline = time.monotonic() + 60
-    while os.path.exists(address):
-        assert time.monotonic() < deadline
+    while "(asked to stop) after 1 requests" not in (private / "serve.log").read_text():
+        assert time.monotonic() < deadline, (private / "serve.log").read_text()
         time.sleep(0.2)
+    assert not os.path.exists(address)
     log = (private / "serve.log").read_text()
     assert "request 1: postprocess --server start" in log and "idle-timeout" not in log
-    assert "(asked to stop) after 1 requests" in log
+
+
+def test_a_server_that_does_not_answer_yet_is_not_replaced(private):
+    # a server still warming up listens but accepts only later: its socket must stay
+    address = str(private / "s.sock")
+    busy = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    busy.bind(address)
+    busy.listen(4)
+    try:
+        with pytest.raises(PrintabilityOSError, match="already running"):
+            serve(address=address, warm=False)
+        assert os.path.exists(address)
+    finally:
+        busy.close()
