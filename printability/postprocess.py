@@ -71,7 +71,7 @@ from printability.motion.orientation import (
 )
 from printability.nozzle import Nozzle, parse_nozzle
 from printability.options import E_POLICIES, FEED_POLICIES
-from printability.rewrite import eol_of, first_command_line, piece_rows_of, rewrite
+from printability.rewrite import eol_of, first_command_line, rewrite
 from printability.targets import layer_targets
 
 __all__ = [
@@ -438,8 +438,7 @@ def postprocess_bytes(
             seg_width_laid[idx] = plan.width
             for i, pieces in plan.pieces.items():
                 seg_pieces[int(idx[i])] = pieces
-            if plan.piece_rows is not None:
-                rows_found.append((idx[plan.piece_rows[0]], *plan.piece_rows[1:]))
+            rows_found.append((idx[plan.piece_rows[0]], *plan.piece_rows[1:]))
             finite = plan.angle[np.isfinite(plan.angle)]
             if finite.size:
                 prev = float(finite[-1])
@@ -448,7 +447,7 @@ def postprocess_bytes(
 
     # ---- rewrite
     piece_rows = None
-    if rows_found and sum(len(r[0]) for r in rows_found) == sum(map(len, seg_pieces.values())):
+    if rows_found:
         cols = [np.concatenate([r[c] for r in rows_found]) for c in range(4)]
         by_chord = np.argsort(cols[0], kind="stable")
         piece_rows = tuple(c[by_chord] for c in cols)
@@ -500,7 +499,7 @@ def _layer_reports(g, layers, areas, idx, counts, lay_of, plan, seg_len, widths
     d_area = np.zeros(n)
     if plan is not None and plan.pieces:
         keys = np.fromiter(plan.pieces, dtype=np.int64, count=len(plan.pieces))
-        rows = plan.piece_rows if plan.piece_rows is not None else piece_rows_of(plan.pieces)
+        rows = plan.piece_rows
         row_move = np.asarray(rows[0], np.int64)
         split, dropped, d_len, d_area = piece_losses(
             keys, np.searchsorted(row_move, keys, "left"),

@@ -25,10 +25,11 @@ import numpy as np
 from gcode.rotary import nearest_equivalent
 from gcode.writer import WriterOptions, format_number
 from printability.errors import InputError
+from printability.motion.orientation import piece_rows_of
 from printability.nozzle import Nozzle
 
 __all__ = ["RewriteOutput", "e_scale", "e_scales", "eol_of", "first_command_line",
-           "piece_rows_of", "planned_turns", "rewrite", "rewrite_reference"]
+           "planned_turns", "rewrite", "rewrite_reference"]
 
 
 @dataclass
@@ -257,16 +258,6 @@ def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widt
     return _Events(lines_u[ev].astype(np.int64), move_u[ev].astype(np.int64),
                    effect[move_u[ev]].astype(np.int64), mv_a0, mv_a1, s_turn,
                    s_scale, rows, scale)
-
-
-def piece_rows_of(seg_pieces: dict) -> tuple:
-    """The pieces of a ``{chord: [OrientedPiece, …]}`` dict as arrays ``(chord, t0, t1,
-    angle)``, by chord and then as listed (dropped chords, with no piece, have no row)."""
-    keys = sorted(seg_pieces)
-    n = [len(seg_pieces[k]) for k in keys]
-    flat = [p for k in keys for p in seg_pieces[k]]
-    return (np.repeat(np.asarray(keys, np.int64), n), np.array([p.t0 for p in flat], float),
-            np.array([p.t1 for p in flat], float), np.array([p.angle for p in flat], float))
 
 
 def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,

@@ -58,6 +58,7 @@ __all__ = [
     "candidate_orientations",
     "convex_pieces",
     "fits",
+    "piece_rows_of",
     "plan_orientations",
     "swept_footprints",
     "swept_rings",
@@ -123,7 +124,7 @@ class Plan:
         during the move (checked with the turning footprint).
     piece_rows
         The pieces of ``pieces`` as arrays ``(move, t0, t1, angle)``, by move and then
-        as listed (empty lists have no row); None when not given.
+        as listed (empty lists have no row); built from ``pieces`` when not given.
     """
 
     angle: np.ndarray
@@ -131,6 +132,10 @@ class Plan:
     pieces: dict[int, list[OrientedPiece]] = field(default_factory=dict)
     fold: np.ndarray | None = None
     piece_rows: tuple | None = None
+
+    def __post_init__(self) -> None:
+        if self.piece_rows is None:
+            object.__setattr__(self, "piece_rows", piece_rows_of(self.pieces))
 
     @property
     def split_moves(self) -> int:
@@ -147,6 +152,16 @@ class Plan:
             kept = sum(p.t1 - p.t0 for p in pieces)
             total += float(lengths[i]) * max(0.0, 1.0 - kept)
         return total
+
+
+def piece_rows_of(seg_pieces: dict) -> tuple:
+    """The pieces of a ``{move: [OrientedPiece, …]}`` dict as arrays ``(move, t0, t1,
+    angle)``, by move and then as listed (dropped moves, with no piece, have no row)."""
+    keys = sorted(seg_pieces)
+    n = [len(seg_pieces[k]) for k in keys]
+    flat = [p for k in keys for p in seg_pieces[k]]
+    return (np.repeat(np.asarray(keys, np.int64), n), np.array([p.t0 for p in flat], float),
+            np.array([p.t1 for p in flat], float), np.array([p.angle for p in flat], float))
 
 
 @functools.lru_cache(maxsize=32)
