@@ -44,11 +44,11 @@ def build_argv(argv: list[str], environ: dict[str, str] | None = None) -> list[s
 def main(argv: list[str] | None = None) -> int:
     """Run ``printability postprocess`` the way a slicer calls a script; returns the exit code."""
     args = build_argv(sys.argv[1:] if argv is None else argv)
-    from printability.server_client import emit, run_remote
+    from printability.server_client import run_served
 
-    remote = run_remote(args, cwd=os.getcwd(), environ=os.environ)
-    if remote is not None:
-        return emit(remote)
+    rc = run_served(args)
+    if rc is not None:
+        return rc
     from printability.cli.main import run  # here, without asking the server again
 
     return run(args)

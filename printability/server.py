@@ -43,6 +43,7 @@ from printability.server_client import (
     call,
     default_address,
     file_identities,
+    forwarded,
     recv_message,
     secure_dir,
     send_message,
@@ -94,14 +95,12 @@ def _run_command(argv: list[str], cwd: str, env: dict[str, str]) -> tuple[int, s
     from printability.cli.main import run as cli_run  # not main: it would ask this server
 
     saved_cwd = os.getcwd()
-    saved = {k: v for k, v in os.environ.items()
-             if k.startswith("SLIC3R_") or k.startswith("PRINTABILITY_")}
+    saved = {k: v for k, v in os.environ.items() if forwarded(k)}
     out, err = io.StringIO(), io.StringIO()
     try:
         for k in saved:
-            if k != "PRINTABILITY_SERVER":
-                del os.environ[k]
-        os.environ.update(env)
+            del os.environ[k]
+        os.environ.update({k: v for k, v in env.items() if forwarded(k)})
         os.chdir(cwd)
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             try:
@@ -113,10 +112,8 @@ def _run_command(argv: list[str], cwd: str, env: dict[str, str]) -> tuple[int, s
         return 1, "", f"printability: error: {cwd}: {exc.strerror}\n"
     finally:
         os.chdir(saved_cwd)
-        for k in [k for k in os.environ
-                  if k.startswith("SLIC3R_") or k.startswith("PRINTABILITY_")]:
-            if k not in saved:
-                del os.environ[k]
+        for k in [k for k in os.environ if forwarded(k) and k not in saved]:
+            del os.environ[k]
         os.environ.update(saved)
     return rc, out.getvalue(), err.getvalue()
 

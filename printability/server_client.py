@@ -30,8 +30,8 @@ Messages
     ``stop``; a run also lists the identity of each file its arguments name
     (:func:`file_identities`), and only ``postprocess`` runs are served. The
     reply to a run is ``{"ok": true, "rc", "stdout",
-    "stderr"}``, or ``{"ok": false, "reason"}`` when the server declines (an
-    other version, or its source files changed since it started).
+    "stderr"}``, or ``{"ok": false, "reason"}`` when the server declines (see
+    :mod:`printability.server` for when).
 Policy
     ``postprocess --server use`` (the default) hands the run over when a
     server answers; ``--server start`` also starts one in the background when
@@ -57,6 +57,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from printability import __version__
+from printability.errors import PrintabilityOSError
 from printability.options import SERVER_POLICIES
 
 __all__ = [
@@ -66,11 +67,12 @@ __all__ = [
     "ServerAddressError",
     "call",
     "default_address",
-    "emit",
     "file_identities",
+    "forwarded",
     "forwarded_env",
     "recv_message",
     "run_remote",
+    "run_served",
     "secure_dir",
     "send_message",
     "server_policy",
@@ -82,7 +84,7 @@ _MAX_MESSAGE = 64 * 2**20  # a reply carries a command's output: far below this
 _CONNECT_TIMEOUT = 2.0  # s; a live server accepts at once (its backlog queues clients)
 
 
-class ServerAddressError(OSError):
+class ServerAddressError(PrintabilityOSError):
     """The server's socket directory is not the user's own private directory."""
 
 
@@ -136,12 +138,15 @@ def default_address(environ: Mapping[str, str] | None = None) -> str | None:
     return os.path.join(base, f"serve-{__version__}.sock")
 
 
+def forwarded(key: str) -> bool:
+    """Whether a run depends on the environment variable ``key``: the slicer's ``SLIC3R_*``
+    and our ``PRINTABILITY_*``, the server address itself excepted."""
+    return (key.startswith(("SLIC3R_", "PRINTABILITY_"))) and key != "PRINTABILITY_SERVER"
+
+
 def forwarded_env(environ: Mapping[str, str]) -> dict[str, str]:
-    """The variables a run depends on: the slicer's ``SLIC3R_*`` and our ``PRINTABILITY_*``
-    (the server address itself excepted)."""
-    return {k: v for k, v in environ.items()
-            if (k.startswith("SLIC3R_") or k.startswith("PRINTABILITY_"))
-            and k != "PRINTABILITY_SERVER"}
+    """The variables of ``environ`` a run depends on (:func:`forwarded`)."""
+    return {k: v for k, v in environ.items() if forwarded(k)}
 
 
 def send_message(sock: socket.socket, obj: Mapping[str, object]) -> None:
@@ -295,12 +300,11 @@ def run_remote(argv: list[str], *, cwd: str, environ: Mapping[str, str],
     policy = server_policy(argv, environ)
     if address is None or policy == "off":
         return None
-    if policy == "start" and not os.path.exists(address):
-        start_in_background(address)
-        return None
     reply = call(address, {"op": "run", "argv": list(argv), "cwd": cwd,
                            "env": forwarded_env(environ), "files": file_identities(argv, cwd)},
                  timeout=None)
+    if reply is None and policy == "start":  # nobody answered (a stale socket file included)
+        start_in_background(address)
     if not reply or reply.get("ok") is not True:
         return None
     rc, out, err = reply.get("rc"), reply.get("stdout"), reply.get("stderr")
@@ -309,9 +313,12 @@ def run_remote(argv: list[str], *, cwd: str, environ: Mapping[str, str],
     return RemoteResult(rc, out, err)
 
 
-def emit(result: RemoteResult) -> int:
-    """Print a served run's output as the run would have, on this process's streams; its
-    exit code."""
+def run_served(argv: list[str]) -> int | None:
+    """:func:`run_remote` for this process (its directory and environment), printing what
+    the served run printed; its exit code, or ``None`` when this process must run it."""
+    result = run_remote(argv, cwd=os.getcwd(), environ=os.environ)
+    if result is None:
+        return None
     sys.stdout.write(result.stdout)
     sys.stdout.flush()
     sys.stderr.write(result.stderr)

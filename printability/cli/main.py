@@ -74,13 +74,11 @@ def main(argv: list[str] | None = None) -> int:
     """
     args = sys.argv[1:] if argv is None else list(argv)
     if args[:1] == ["postprocess"]:
-        import os
+        from printability.server_client import run_served
 
-        from printability.server_client import emit, run_remote
-
-        remote = run_remote(args, cwd=os.getcwd(), environ=os.environ)
-        if remote is not None:
-            return emit(remote)
+        rc = run_served(args)
+        if rc is not None:
+            return rc
     return run(args)
 
 

@@ -337,6 +337,10 @@ def test_server_start_starts_one_for_the_next_exports(private, prusa_short, tmp_
     first, second = tmp_path / "first.gcode", tmp_path / "second.gcode"
     for p in (first, second):
         p.write_bytes(prusa_short.read_bytes())
+    # a socket file nobody listens on, as a killed server leaves: no server either
+    stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    stale.bind(address)
+    stale.close()
     try:
         # no server yet: this run is done here, and one is started in the background
         r = _plugin(["--server", "start", "--nozzle", ELLIPSE, str(first)], address=address,
