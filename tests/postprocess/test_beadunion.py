@@ -158,3 +158,51 @@ def test_the_fused_search_decides_as_geos_on_a_bead_union(nozzle):
     slow = fits(u, pieces, q0, q1, angle, fast=False)
     np.testing.assert_array_equal(fast, slow)
     assert fast.any() and not fast.all()
+
+
+@pytest.mark.parametrize("tau", [TAU, 1e-2, 0.1])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
+    """_clip_near skips the half-planes that hold both ends of an edge by a margin; the
+    interval must be the full Liang–Barsky loop's, bit for bit, for edges at any distance
+    and direction from the polygon (near its sides, its caps and far from it)."""
+    from printability.motion.beadunion import (
+        _EPS,
+        INNER,
+        _clip,
+        _clip_near,
+        _corner_cosines,
+        _polygons,
+        _window,
+    )
+
+    rng = np.random.default_rng(seed)
+    n = 40
+    ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
+    length = rng.choice([0.0, 0.05, 1.0, 4.0], n)
+    ang = rng.uniform(0, 2 * math.pi, n)
+    bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
+    r = rng.uniform(0.1, 0.6, n)
+    rho, rmax = r + tau / 2, r * INNER + tau
+    off, ux, uy, h, *_ = _polygons(ax, ay, bx, by, rho, rmax)
+    vc = _corner_cosines(off)
+    windowed = 0
+    for j in range(n):
+        k = (off[j + 1] - off[j]) // 2
+        # ends scattered around the polygon, from deep inside to a few radii out
+        t = rng.uniform(-0.5, 1.5, 400)
+        s = rng.uniform(0, 3.5 * rho[j], 400) * np.exp(1j * rng.uniform(0, 2 * math.pi, 400))
+        px = ax[j] + t * (bx[j] - ax[j]) + s.real
+        py = ay[j] + t * (by[j] - ay[j]) + s.imag
+        e = rng.uniform(0.001, 2 * rho[j], 400) * np.exp(1j * rng.uniform(0, 2 * math.pi, 400))
+        for i in range(400):
+            args = (px[i], py[i], px[i] + e[i].real, py[i] + e[i].imag, ux, uy, h,
+                    off[j], off[j + 1], _EPS if i % 2 else -_EPS, _EPS,
+                    math.cos(i), math.sin(i))
+            near = _clip_near(*args, ax[j], ay[j], bx[j], by[j], rho[j], _EPS, vc[k])
+            assert near == _clip(*args)  # (an empty interval is (1, 0) in both)
+            ends = [_window(x, y, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]], rho[j],
+                            k, _EPS, vc[k])[1] for x, y in (args[:2], args[2:4])]
+            windowed += max(ends) < k // 2
+    # most edges here take the windowed path (the test would be vacuous otherwise)
+    assert windowed > n * 400 // 3
