@@ -76,6 +76,17 @@ def linearise(moves: np.ndarray, tolerance: float) -> np.ndarray:
     shared evenly by its chords. Complexity O(total chords).
     """
     is_arc = moves["kind"] >= 2
+    if not is_arc.any():
+        # one chord per move: the general path's arithmetic at t0 = 0, t1 = 1 (to the bit,
+        # signed zeros included), without gathering every move once per chord
+        seg = np.empty(len(moves), SEGMENT_DTYPE)
+        seg["move"] = np.arange(len(moves))
+        for c in ("x", "y", "z"):
+            a0, a1 = moves[c + "0"], moves[c + "1"]
+            seg[c + "0"] = a0 + (a1 - a0) * 0.0
+            seg[c + "1"] = a1
+        seg["e"] = moves["e"] / 1.0
+        return seg
     counts = np.ones(len(moves), np.int64)
     if is_arc.any():
         a = moves[is_arc]

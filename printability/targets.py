@@ -105,26 +105,45 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
 
 def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
     """Per layer: the box of its beads grown by their radius and the tolerance, and of its
-    planned chords grown by ``reach`` (mm): all its footprints and bead polygons."""
+    planned chords grown by ``reach`` (mm): all its footprints and bead polygons.
+
+    One pass over all the layers (min and max are exact, so the order they are taken in
+    does not matter; a loop per layer cost more than the bead union on small layers).
+    """
     pseg, porder, pbounds = planned
-    lo = np.empty((len(layers), 2))
-    hi = np.empty((len(layers), 2))
-    for j, k in enumerate(layers):
-        rows = per_layer[k]
-        s = seg[rows]
-        grow = width[rows] / 2 + tolerance
-        xs = [np.minimum(s["x0"], s["x1"]) - grow, np.maximum(s["x0"], s["x1"]) + grow]
-        ys = [np.minimum(s["y0"], s["y1"]) - grow, np.maximum(s["y0"], s["y1"]) + grow]
-        mine = porder[pbounds[k]:pbounds[k + 1]] if k + 1 < len(pbounds) else porder[:0]
-        q = pseg[mine]
-        # (chords of unknown position are no extrusions; kept out of the box all the same)
-        q = q[np.isfinite(q["x0"]) & np.isfinite(q["y0"]) & np.isfinite(q["x1"])
-              & np.isfinite(q["y1"])]
-        if q.size:
-            xs += [np.minimum(q["x0"], q["x1"]) - reach, np.maximum(q["x0"], q["x1"]) + reach]
-            ys += [np.minimum(q["y0"], q["y1"]) - reach, np.maximum(q["y0"], q["y1"]) + reach]
-        lo[j] = min(float(v.min()) for v in xs[0::2]), min(float(v.min()) for v in ys[0::2])
-        hi[j] = max(float(v.max()) for v in xs[1::2]), max(float(v.max()) for v in ys[1::2])
+    n = len(layers)
+    lo = np.empty((n, 2))
+    hi = np.empty((n, 2))
+    if n == 0:
+        return lo, hi
+    sizes = np.array([per_layer[k].size for k in layers], dtype=np.int64)
+    rows = np.concatenate([per_layer[k] for k in layers])
+    first = np.cumsum(sizes) - sizes  # every layer here has beads
+    s = seg[rows]
+    grow = width[rows] / 2 + tolerance
+    for c, (a, b) in enumerate((("x0", "x1"), ("y0", "y1"))):
+        lo[:, c] = np.minimum.reduceat(np.minimum(s[a], s[b]) - grow, first)
+        hi[:, c] = np.maximum.reduceat(np.maximum(s[a], s[b]) + grow, first)
+    # the planned chords of each layer (chords of unknown position are no extrusions:
+    # kept out of the box all the same)
+    lay = np.asarray(layers, dtype=np.int64)
+    pb = np.asarray(pbounds, dtype=np.int64)
+    inside = lay + 1 < len(pb)
+    a0 = np.where(inside, pb[np.minimum(lay, len(pb) - 1)], 0)
+    a1 = np.where(inside, pb[np.minimum(lay + 1, len(pb) - 1)], 0)
+    count = a1 - a0
+    some = np.flatnonzero(count > 0)
+    if some.size:
+        take = np.concatenate([porder[a0[j]:a1[j]] for j in some])
+        q = pseg[take]
+        ok = (np.isfinite(q["x0"]) & np.isfinite(q["y0"]) & np.isfinite(q["x1"])
+              & np.isfinite(q["y1"]))
+        starts = np.cumsum(count[some]) - count[some]
+        for c, (a, b) in enumerate((("x0", "x1"), ("y0", "y1"))):
+            qlo = np.where(ok, np.minimum(q[a], q[b]) - reach, np.inf)
+            qhi = np.where(ok, np.maximum(q[a], q[b]) + reach, -np.inf)
+            lo[some, c] = np.minimum(lo[some, c], np.minimum.reduceat(qlo, starts))
+            hi[some, c] = np.maximum(hi[some, c], np.maximum.reduceat(qhi, starts))
     return lo, hi
 
 
