@@ -17,6 +17,7 @@ from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 
+import numba
 import numpy as np
 
 from printability.motion.beadunion import INNER, bead_union
@@ -154,16 +155,38 @@ def _tile_areas(u, tiling, batch: int, tolerance: float) -> list[float]:
     n = int(tiling.bounds[batch + 1] - tiling.bounds[batch])
     if len(u.ex0) == 0:
         return [0.0] * n
-    j = tiling.tile_of(batch, (u.ex0 + u.ex1) / 2, (u.ey0 + u.ey1) / 2)
-    if (j < 0).any():
+    px, py = (float(v) for v in tiling.pitch[batch])
+    twice, perimeter, ok = _tile_sums(u.ex0, u.ey0, u.ex1, u.ey1, px, py,
+                                      int(tiling.cols[batch]), n)
+    if not ok:
         raise RuntimeError("a boundary piece of the bead union lies outside every tile")
-    cols = int(tiling.cols[batch])
-    px, py = tiling.pitch[batch]
-    ox, oy = (j % cols) * px, (j // cols) * py
-    x0, y0, x1, y1 = u.ex0 - ox, u.ey0 - oy, u.ex1 - ox, u.ey1 - oy
-    area = np.abs(0.5 * np.bincount(j, x0 * y1 - x1 * y0, minlength=n))
-    perimeter = np.bincount(j, np.hypot(x1 - x0, y1 - y0), minlength=n)
+    area = np.abs(0.5 * twice)
     return np.maximum(0.0, area - tolerance / 2 * perimeter).tolist()
+
+
+@numba.njit(cache=True, nogil=True)
+def _tile_sums(ex0, ey0, ex1, ey1, px, py, cols, n):  # pragma: no cover
+    """Per tile (:meth:`Tiling.tile_of` of each piece's midpoint): twice the signed area
+    of its pieces about the tile's corner and their length, summed in the pieces' order
+    (the arithmetic of ``np.bincount`` over the numpy expressions, in one pass); and
+    whether every piece lies in a tile."""
+    twice = np.zeros(n)
+    length = np.zeros(n)
+    for e in range(len(ex0)):
+        ix = math.floor(((ex0[e] + ex1[e]) / 2) / px)
+        iy = math.floor(((ey0[e] + ey1[e]) / 2) / py)
+        j = iy * cols + ix
+        if ix < 0 or ix >= cols or iy < 0 or j >= n:
+            return twice, length, False
+        ox = (j % cols) * px
+        oy = (j // cols) * py
+        x0 = ex0[e] - ox
+        y0 = ey0[e] - oy
+        x1 = ex1[e] - ox
+        y1 = ey1[e] - oy
+        twice[j] += x0 * y1 - x1 * y0
+        length[j] += math.hypot(x1 - x0, y1 - y0)
+    return twice, length, True
 
 
 def _union_edges(r: float, tolerance: float) -> float:
