@@ -48,7 +48,7 @@ def serve_command(
             raise typer.Exit(1)
         typer.echo(f"server at {address} stopped")
         return
-    res = serve(address=address, idle_timeout=idle_timeout, warm=warm,
+    res = serve(address=address, idle_timeout=idle_timeout, warm=warm, retain_memory=True,
                 on_event=lambda msg: typer.echo(f"printability serve: {msg}", err=True))
     typer.echo(f"served {res.requests} requests in {res.seconds:.0f} s ({res.reason})")
 
