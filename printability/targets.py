@@ -52,9 +52,11 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     area). Layers are laid side by side (:mod:`printability.motion.tiles`) so that one
     union serves a batch; each tile holds the layer's beads and its ``planned`` moves
     (``(seg, order, bounds)``: chords, their order by layer and each layer's rows of
-    it) grown by ``reach``, the nozzle's radius. A tolerance too small for the bead
-    union falls back to GEOS (the union, then a buffer), one layer per batch. Targets
-    are built on ``workers`` threads while the caller plans.
+    it) grown by ``reach``, the nozzle's radius. A layer that repeats an earlier one of
+    its batch to the bit (its beads and planned chords) is given that layer's translation
+    and adds nothing to the union (:func:`_repeated_layers`). A tolerance too small for
+    the bead union falls back to GEOS (the union, then a buffer), one layer per batch.
+    Targets are built on ``workers`` threads while the caller plans.
     """
     settings = Settings(quad_segs=quad_segs, workers=workers)
     seg, width, _, _, bounds, _ = layer_beads(g, settings=settings,
@@ -71,17 +73,25 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
         tiling = tile_layers(lo, hi, [per_layer[k].size for k in with_target],
                              gap=_TILE_GAP, max_area=_BATCH_AREA, max_weight=_BATCH_BEADS)
 
+        same = _repeated_layers(seg, width, per_layer, with_target, planned)
+
         def one(b: int) -> tuple[list[int], np.ndarray, object, list[float]]:
             first, stop = int(tiling.bounds[b]), int(tiling.bounds[b + 1])
             layers = with_target[first:stop]
-            offset = tiling.offset[first:stop]
-            rows = np.concatenate([per_layer[k] for k in layers])
-            shift = np.repeat(offset, [per_layer[k].size for k in layers], axis=0)
+            # a layer identical to an earlier one of the batch is planned on that one's tile
+            tile = np.arange(len(layers))
+            again = same[first:stop] >= first
+            tile[again] = same[first:stop][again] - first
+            own = np.flatnonzero(~again)
+            rows = np.concatenate([per_layer[layers[j]] for j in own])
+            shift = np.repeat(tiling.offset[first + own], [per_layer[layers[j]].size for j in own],
+                              axis=0)
             s = seg[rows]
             u = bead_union(np.column_stack([s["x0"], s["y0"]]) + shift,
                            np.column_stack([s["x1"], s["y1"]]) + shift, width[rows] / 2,
                            grow=tolerance)
-            return layers, offset, u, _tile_areas(u, tiling, b, tolerance)
+            areas = _tile_areas(u, tiling, b, tolerance)
+            return layers, tiling.offset[first + tile], u, [areas[j] for j in tile]
 
         todo = list(range(tiling.batches))
         if workers <= 1:
@@ -102,6 +112,29 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     if workers <= 1:
         return map(grown, todo_l)
     return threaded(grown, todo_l, workers)
+
+
+def _repeated_layers(seg, width, per_layer, layers, planned) -> np.ndarray:
+    """Per layer (of ``layers``): the position of the first earlier one with the very same
+    beads and planned chords (to the bit), else -1.
+
+    Prismatic parts repeat layers (the calibration cube: 31 of its 100); such a layer's
+    target, tile and footprint answers are its twin's, so its union is not built again.
+    """
+    pseg, porder, pbounds = planned
+    seen: dict[tuple[bytes, bytes], int] = {}
+    out = np.full(len(layers), -1, dtype=np.int64)
+    for j, k in enumerate(layers):
+        rows = per_layer[k]
+        mine = porder[pbounds[k]:pbounds[k + 1]] if k + 1 < len(pbounds) else porder[:0]
+        key = (np.column_stack([seg["x0"][rows], seg["y0"][rows], seg["x1"][rows],
+                                seg["y1"][rows], width[rows]]).tobytes(),
+               np.column_stack([pseg["x0"][mine], pseg["y0"][mine], pseg["x1"][mine],
+                                pseg["y1"][mine]]).tobytes())
+        out[j] = seen.setdefault(key, j)
+        if out[j] == j:
+            out[j] = -1
+    return out
 
 
 def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
