@@ -23,11 +23,15 @@ cube's first two layers). That second ratio is what a slicer's user waits for.
 
 Run::
 
-    python benchmarks/bench_postprocess.py            # every STL, each run 3 times (~10 min)
+    python benchmarks/bench_postprocess.py            # every STL, 5 rounds (~15 min)
     python benchmarks/bench_postprocess.py --quick    # the calibration cube and ThinWall
-    python benchmarks/bench_postprocess.py --repeat 1 # one run of each (noisier)
+    python benchmarks/bench_postprocess.py --repeat 1 # one round (noisier)
 
-Each figure is the fastest of ``--repeat`` runs, the slicer's as ours.
+Each part is measured in rounds, each round running the slicer, the work and the
+plugin (alone and served) in turn, so that they share the machine's drifts. Each
+figure is the fastest of the rounds, the slicer's as ours; the paired ratios at
+the end are the median over the rounds of our time over the slicer's in the same
+round (on a noisy machine the two statistics bracket the truth).
 
 Nothing here is asserted: the figures go in the README.
 """
@@ -38,6 +42,7 @@ import argparse
 import os
 import resource
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -124,12 +129,18 @@ def _fastest(runs) -> tuple[float, float]:
     return min(walls), min(cpus)
 
 
+def _paired(ours: list[tuple[float, float]], slicer: list[tuple[float, float]]) -> float:
+    """The median over the rounds of our CPU time over the slicer's in the same round: on a
+    shared machine whose speed drifts, each round's two runs see about the same machine."""
+    return statistics.median(o[1] / max(s[1], 1e-9) for o, s in zip(ours, slicer, strict=True))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="two small parts only")
-    ap.add_argument("--repeat", type=int, default=3,
-                    help="runs of each measurement, the fastest kept (default 3): on a shared "
-                         "machine one run of a small part varies by a third")
+    ap.add_argument("--repeat", type=int, default=5,
+                    help="rounds of every measurement, the fastest kept (default 5): on a "
+                         "shared machine one run of a small part varies by a third")
     args = ap.parse_args(argv)
     exe = shutil.which("prusa-slicer")
     if exe is None:
@@ -176,21 +187,33 @@ def _run(exe: str, names: list[str], tmp: Path, args, address: str,
           f"{'round s':>9}{'lines/s':>10}{'split':>7}{'dropped':>8}"
           f"{'plugin s':>10}{'CPU':>7}{'ratio':>7}{'wall r':>7}"
           f"{'served s':>10}{'CPU':>7}{'ratio':>7}{'wall r':>7}")
+    paired = []
     for name in names:
         out = tmp / (Path(name).stem + ".gcode")
-        s_wall, s_cpu = _fastest(slice_part(exe, DATA / name, out) for _ in range(rep))
+        slice_part(exe, DATA / name, out)
         data = out.read_bytes()
-        runs = [postprocess(data, ELLIPSE) for _ in range(rep)]
-        e_wall, e_cpu = _fastest(r[:2] for r in runs)
-        res = runs[0][2]
-        r_wall, r_cpu = _fastest(postprocess(data, "circle:d=0.4")[:2] for _ in range(rep))
+        res = postprocess(data, ELLIPSE)[2]
 
         def plugin_once(out=out, data=data, **kw):
             out.write_bytes(data)  # the plugin rewrites it in place
             return plugin_run(out, ELLIPSE, **kw)
 
-        p_wall, p_cpu = _fastest(plugin_once() for _ in range(rep))
-        v_wall, v_cpu = _fastest(plugin_once(**served) for _ in range(rep))
+        # rounds of every measurement in turn, so that the slicer and we share the
+        # machine's drifts (the slicer's output is the same file every time)
+        rounds = {"slice": [], "work": [], "round": [], "plugin": [], "served": []}
+        for _ in range(rep):
+            rounds["slice"].append(slice_part(exe, DATA / name, out))
+            rounds["work"].append(postprocess(data, ELLIPSE)[:2])
+            rounds["round"].append(postprocess(data, "circle:d=0.4")[:2])
+            rounds["plugin"].append(plugin_once())
+            rounds["served"].append(plugin_once(**served))
+        s_wall, s_cpu = _fastest(rounds["slice"])
+        e_wall, e_cpu = _fastest(rounds["work"])
+        r_wall, r_cpu = _fastest(rounds["round"])
+        p_wall, p_cpu = _fastest(rounds["plugin"])
+        v_wall, v_cpu = _fastest(rounds["served"])
+        paired.append((name, _paired(rounds["work"], rounds["slice"]),
+                       _paired(rounds["served"], rounds["slice"])))
         if server.poll() is not None:
             print("the server stopped (its source files changed?): the served figures are "
                   "local runs", file=sys.stderr)
@@ -212,6 +235,10 @@ def _run(exe: str, names: list[str], tmp: Path, args, address: str,
           f"vs AW = our lines/s (CPU) / ArcWelder's ~{ARCWELDER_LINES_PER_S:,} lines/s; "
           "plugin = a new printability-postprocess process per file, as the slicer runs it; "
           "served = the same with `printability serve` running (plugin + server CPU)")
+    print(f"paired ratios (median over the {rep} rounds of our CPU / the slicer's in the same "
+          "round):")
+    for name, work, served_r in paired:
+        print(f"  {name[:23]:<24} the work {work:.2f}   served {served_r:.2f}")
     return 0
 
 
