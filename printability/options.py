@@ -9,7 +9,6 @@ the same objects, so the two can never disagree.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 
 from printability.errors import UnknownOptionError
 
@@ -36,12 +35,34 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
 class Registry(Mapping[str, str]):
-    """A named set of valid string choices, each with a one-line description."""
+    """A named set of valid string choices, each with a one-line description (immutable).
 
+    Not a dataclass: the slicer plug-in's client imports this module on every export,
+    and ``dataclasses`` imports ``inspect`` (a sixth of the client's start).
+    """
+
+    __slots__ = ("entries", "name")
     name: str
     entries: tuple[tuple[str, str], ...]
+
+    def __init__(self, name: str, entries: tuple[tuple[str, str], ...]) -> None:
+        object.__setattr__(self, "name", name)
+        object.__setattr__(self, "entries", tuple(entries))
+
+    def __setattr__(self, key: str, value: object) -> None:
+        raise AttributeError(f"a Registry is immutable; cannot set {key!r}")
+
+    def __repr__(self) -> str:
+        return f"Registry(name={self.name!r}, entries={self.entries!r})"
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Registry):
+            return NotImplemented
+        return (self.name, self.entries) == (other.name, other.entries)
+
+    def __hash__(self) -> int:
+        return hash((self.name, self.entries))
 
     def __getitem__(self, key: str) -> str:
         for k, v in self.entries:

@@ -413,3 +413,14 @@ def test_a_server_keeps_freed_memory_for_the_next_request():
     assert runs["keep"][0] is True
     assert runs["default"][1] > 5 * 1_000
     assert runs["keep"][1] < runs["default"][1] / 10
+
+
+def test_the_client_starts_on_the_standard_library_alone():
+    """Every export pays the client's start: it imports neither the libraries the work needs
+    nor the heavy parts of the standard library (``dataclasses`` pulls in ``inspect``)."""
+    code = ("import sys; import plugin.prusaslicer, printability.server_client; "
+            "print(' '.join(sorted(m for m in ('numpy', 'numba', 'shapely', 'typer', 'rich', "
+            "'dataclasses', 'inspect') if m in sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == ""
