@@ -8,6 +8,7 @@ error on stderr, 2 usage.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import sys
 import textwrap
@@ -82,6 +83,15 @@ def main(argv: list[str] | None = None) -> int:
     return run(args)
 
 
+@functools.cache
+def _command():
+    """The click command Typer builds from ``app``, built once per process: Typer rebuilds
+    it on every call (every subcommand's signature and type hints, about 20 ms), which
+    each request to ``printability serve`` would pay. (Typer's own call adds only its
+    pretty tracebacks, which ``app`` turns off.)"""
+    return typer.main.get_command(app)
+
+
 def run(argv: list[str] | None = None) -> int:
     """Run the CLI in this process; returns the process exit code.
 
@@ -90,7 +100,7 @@ def run(argv: list[str] | None = None) -> int:
     on stderr with exit code 1. Anything else is a bug and keeps its traceback.
     """
     try:
-        app(args=argv, prog_name="printability", standalone_mode=True)
+        _command()(args=argv, prog_name="printability", standalone_mode=True)
     except SystemExit as exc:
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)
