@@ -11,7 +11,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["bin_boxes", "cell_of", "point_segment2", "segments2"]
+__all__ = ["bin_boxes", "cell_of", "point_segment2", "segment_offset", "segments2"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -26,17 +26,22 @@ def cell_of(v, v0, cell, n):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def point_segment2(px, py, ax, ay, bx, by):  # pragma: no cover
-    """Squared distance from a point to the segment [a, b]."""
+def segment_offset(px, py, ax, ay, bx, by):  # pragma: no cover
+    """The point p less its nearest point on the segment [a, b] (a vector, mm)."""
     dx = bx - ax
     dy = by - ay
     ll = dx * dx + dy * dy
     t = 0.0
     if ll > 0.0:
         t = min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / ll))
-    qx = ax + t * dx - px
-    qy = ay + t * dy - py
-    return qx * qx + qy * qy
+    return px - (ax + t * dx), py - (ay + t * dy)
+
+
+@numba.njit(cache=True, nogil=True)
+def point_segment2(px, py, ax, ay, bx, by):  # pragma: no cover
+    """Squared distance from a point to the segment [a, b]."""
+    ex, ey = segment_offset(px, py, ax, ay, bx, by)
+    return ex * ex + ey * ey
 
 
 @numba.njit(cache=True, nogil=True)

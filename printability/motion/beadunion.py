@@ -71,6 +71,7 @@ from printability.errors import InputError
 from printability.motion._kernels import bin_boxes as _bin_boxes
 from printability.motion._kernels import cell_of as _cell
 from printability.motion._kernels import point_segment2 as _point_segment2
+from printability.motion._kernels import segment_offset as _segment_offset
 from printability.motion._kernels import segments2 as _segments2
 
 __all__ = ["INNER", "BeadUnion", "bead_union", "in_polygons", "union_contains_xy",
@@ -335,22 +336,29 @@ def _clip(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny):  # pragma: no 
     dx = qx - px
     dy = qy - py
     for j in range(a, b):
-        p = ux[j] * dx + uy[j] * dy
-        q = h[j] + margin + turn * (1.0 - (ux[j] * nx + uy[j] * ny)) \
-            - (ux[j] * px + uy[j] * py)
-        if p == 0.0:
-            if q < 0.0:
-                return 1.0, 0.0
-        elif p > 0.0:
-            t = q / p
-            if t < t1:
-                t1 = t
-        else:
-            t = q / p
-            if t > t0:
-                t0 = t
+        t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
         if t1 <= t0:
             return 1.0, 0.0
+    return t0, t1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1):  # pragma: no cover
+    """One Liang–Barsky step of :func:`_clip`: [t0, t1] cut by half-plane ``j`` (an empty
+    interval, t1 <= t0, when the edge runs parallel outside it)."""
+    p = ux[j] * dx + uy[j] * dy
+    q = h[j] + margin + turn * (1.0 - (ux[j] * nx + uy[j] * ny)) - (ux[j] * px + uy[j] * py)
+    if p == 0.0:
+        if q < 0.0:
+            return 1.0, 0.0
+    elif p > 0.0:
+        t = q / p
+        if t < t1:
+            t1 = t
+    else:
+        t = q / p
+        if t > t0:
+            t0 = t
     return t0, t1
 
 
@@ -372,14 +380,7 @@ def _window(x, y, ax, ay, bx, by, lx, ly, rho, k, eps, vck):  # pragma: no cover
     the plane m steps from it is at least (m − ½)·π/k from d, and ``vck[m - 1]`` =
     cos((m − ½)·π/k) bounds its cos Δ.
     """
-    dx = bx - ax
-    dy = by - ay
-    ll = dx * dx + dy * dy
-    t = 0.0
-    if ll > 0.0:
-        t = min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / ll))
-    ex = x - (ax + t * dx)
-    ey = y - (ay + t * dy)
+    ex, ey = _segment_offset(x, y, ax, ay, bx, by)
     d2 = ex * ex + ey * ey
     lim = rho - eps - _SAFE
     if d2 <= lim * lim:
@@ -426,20 +427,7 @@ def _clip_near(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, sax, say, 
         for mm in range(2 * w + 1):  # the nearest plane first, then ±1, ±2…
             m = (mm + 1) // 2 if mm % 2 else -(mm // 2)
             j = a + (js + m) % (2 * k)
-            p = ux[j] * dx + uy[j] * dy
-            q = h[j] + margin + turn * (1.0 - (ux[j] * nx + uy[j] * ny)) \
-                - (ux[j] * px + uy[j] * py)
-            if p == 0.0:
-                if q < 0.0:
-                    return 1.0, 0.0
-            elif p > 0.0:
-                t = q / p
-                if t < t1:
-                    t1 = t
-            else:
-                t = q / p
-                if t > t0:
-                    t0 = t
+            t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
             if t1 <= t0:
                 return 1.0, 0.0
     return t0, t1
