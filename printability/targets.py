@@ -54,7 +54,7 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     (``(seg, order, bounds)``: chords, their order by layer and each layer's rows of
     it) grown by ``reach``, the nozzle's radius. A layer that repeats an earlier one of
     its batch to the bit (its beads and planned chords) is given that layer's translation
-    and adds nothing to the union (:func:`_repeated_layers`). A tolerance too small for
+    and adds nothing to the union (:func:`_layer_kinds`). A tolerance too small for
     the bead union falls back to GEOS (the union, then a buffer), one layer per batch.
     Targets are built on ``workers`` threads while the caller plans.
     """
@@ -73,16 +73,15 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
         tiling = tile_layers(lo, hi, [per_layer[k].size for k in with_target],
                              gap=_TILE_GAP, max_area=_BATCH_AREA, max_weight=_BATCH_BEADS)
 
-        same = _repeated_layers(seg, width, per_layer, with_target, planned)
+        kind = _layer_kinds(seg, width, per_layer, with_target, planned)
 
         def one(b: int) -> tuple[list[int], np.ndarray, object, list[float]]:
             first, stop = int(tiling.bounds[b]), int(tiling.bounds[b + 1])
             layers = with_target[first:stop]
             # a layer identical to an earlier one of the batch is planned on that one's tile
-            tile = np.arange(len(layers))
-            again = same[first:stop] >= first
-            tile[again] = same[first:stop][again] - first
-            own = np.flatnonzero(~again)
+            _, at, inverse = np.unique(kind[first:stop], return_index=True, return_inverse=True)
+            tile = at[inverse]
+            own = np.flatnonzero(tile == np.arange(len(layers)))
             rows = np.concatenate([per_layer[layers[j]] for j in own])
             shift = np.repeat(tiling.offset[first + own], [per_layer[layers[j]].size for j in own],
                               axis=0)
@@ -114,16 +113,16 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     return threaded(grown, todo_l, workers)
 
 
-def _repeated_layers(seg, width, per_layer, layers, planned) -> np.ndarray:
-    """Per layer (of ``layers``): the position of the first earlier one with the very same
-    beads and planned chords (to the bit), else -1.
+def _layer_kinds(seg, width, per_layer, layers, planned) -> np.ndarray:
+    """Per layer (of ``layers``): a number shared by the layers with the very same beads and
+    planned chords (to the bit), and by no other.
 
     Prismatic parts repeat layers (the calibration cube: 31 of its 100); such a layer's
     target, tile and footprint answers are its twin's, so its union is not built again.
     """
     pseg, porder, pbounds = planned
     seen: dict[tuple[bytes, bytes], int] = {}
-    out = np.full(len(layers), -1, dtype=np.int64)
+    out = np.empty(len(layers), dtype=np.int64)
     for j, k in enumerate(layers):
         rows = per_layer[k]
         mine = porder[pbounds[k]:pbounds[k + 1]] if k + 1 < len(pbounds) else porder[:0]
@@ -131,9 +130,7 @@ def _repeated_layers(seg, width, per_layer, layers, planned) -> np.ndarray:
                                 seg["y1"][rows], width[rows]]).tobytes(),
                np.column_stack([pseg["x0"][mine], pseg["y0"][mine], pseg["x1"][mine],
                                 pseg["y1"][mine]]).tobytes())
-        out[j] = seen.setdefault(key, j)
-        if out[j] == j:
-            out[j] = -1
+        out[j] = seen.setdefault(key, len(seen))
     return out
 
 

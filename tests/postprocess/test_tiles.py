@@ -196,3 +196,21 @@ def test_repeated_layers_share_their_twin_target(monkeypatch):
     assert len(reports) == 4
     for r in reports:
         assert r.max_outside <= 1e-3 + 2e-4, f"layer {r.layer}: {r.max_outside} mm outside"
+
+
+def test_repeated_layers_share_a_tile_in_every_batch(monkeypatch):
+    """The twins of a later batch share one tile too, though their first copy was built in
+    an earlier batch: batches of two layers, one layer's beads each after the first."""
+    data = _square_layers(5, first_differs=True)
+    seen = []
+    real = pp_targets.bead_union
+
+    def spy(p0, p1, r, **kw):
+        seen.append(len(p0))
+        return real(p0, p1, r, **kw)
+
+    monkeypatch.setattr(pp_targets, "bead_union", spy)
+    monkeypatch.setattr(pp_targets, "_BATCH_AREA", 400.0)  # two 12 mm tiles a batch
+    _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
+    n = [r.moves for r in res.layers]
+    assert seen == [n[0] + n[1], n[2], n[4]]
