@@ -37,6 +37,7 @@ from printability.motion import footprints as fp
 from printability.motion._plan_kernels import (
     chain_nearest,
     merge_pieces,
+    points_along,
     smooth_chain,
     split_intervals,
     width_picks,
@@ -557,8 +558,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         niv = iv_mv.size
         cand_iv = np.repeat(np.arange(niv), ncol)
         phis = top[iv_mv].reshape(-1)
-        q0 = a[iv_mv] + iv_t0[:, None] * ba[iv_mv]
-        q1 = a[iv_mv] + iv_t1[:, None] * ba[iv_mv]
+        q0 = points_along(a, ba, iv_mv, iv_t0)
+        q1 = points_along(a, ba, iv_mv, iv_t1)
         gpos = ivpos[:-1] * ncol
         gend = ivpos[1:] * ncol
         sc_iv = None if scale is None else scale[iv_mv]
@@ -596,8 +597,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     ta = ra_all[part]
     tb = rb_all[part]
     while idx.size:
-        q0 = a[idx] + ta[:, None] * ba[idx]
-        q1 = a[idx] + tb[:, None] * ba[idx]
+        q0 = points_along(a, ba, idx, ta)
+        q1 = points_along(a, ba, idx, tb)
         if fast and fp._fused(pieces) and ncand:
             # no limit: a part tries all its move's candidates, in order
             first = fp._first_fit(target, pieces, q0, q1, None if scale is None else scale[idx],

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from printability.motion._plan_kernels import split_intervals
+from printability.motion._plan_kernels import points_along, split_intervals
 
 
 def _intervals_numpy(length, step, ncol):
@@ -57,3 +57,17 @@ def test_split_intervals_are_the_numpy_ones(seed, ncol):
     for a, b in zip(got, ref, strict=True):
         assert a.tobytes() == b.astype(a.dtype).tobytes()
     assert np.all(np.diff(ivpos) > 0) and moves.size > 300
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_points_along_are_the_numpy_ones(seed):
+    """The compiled points along the moves are numpy's ``a[idx] + t[:, None] * ba[idx]`` to
+    the bit (the planner's footprints, hence its decisions, depend on them)."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-300, 300, (500, 2))
+    ba = rng.normal(0, 5, (500, 2))
+    ba[:5] = 0.0
+    idx = rng.integers(0, 500, 4000)
+    t = np.concatenate([[0.0, 1.0, 0.5], rng.uniform(0, 1, 3997)])
+    np.testing.assert_array_equal(points_along(a, ba, idx, t), a[idx] + t[:, None] * ba[idx])
+    assert points_along(a, ba, idx[:0], t[:0]).shape == (0, 2)
