@@ -164,7 +164,21 @@ def _square_layers(n_layers: int, *, first_differs: bool) -> bytes:
     return ("\n".join(out) + "\n").encode()
 
 
-def test_repeated_layers_share_their_twin_target(monkeypatch):
+@pytest.fixture()
+def union_sizes(monkeypatch):
+    """The bead count of every bead union the post-processor builds, in order."""
+    seen = []
+    real = pp_targets.bead_union
+
+    def spy(p0, p1, r, **kw):
+        seen.append(len(p0))
+        return real(p0, p1, r, **kw)
+
+    monkeypatch.setattr(pp_targets, "bead_union", spy)
+    return seen
+
+
+def test_repeated_layers_share_their_twin_target(union_sizes):
     """Layers repeating an earlier one of their batch (the same beads and moves to the bit)
     are planned on its tile: their union is built once, with the same area, and what
     they print stays inside their own layer's target."""
@@ -175,18 +189,10 @@ def test_repeated_layers_share_their_twin_target(monkeypatch):
     from printability.nozzle import parse_nozzle
 
     data = _square_layers(5, first_differs=True)
-    seen = []
-    real = pp_targets.bead_union
-
-    def spy(p0, p1, r, **kw):
-        seen.append(len(p0))
-        return real(p0, p1, r, **kw)
-
-    monkeypatch.setattr(pp_targets, "bead_union", spy)
     new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
     per_layer = [r.moves for r in res.layers]
-    assert len(per_layer) == 5 and len(seen) == 1
-    assert seen[0] == per_layer[0] + per_layer[1]  # layers 3 to 5 add no bead
+    assert len(per_layer) == 5 and len(union_sizes) == 1
+    assert union_sizes[0] == per_layer[0] + per_layer[1]  # layers 3 to 5 add no bead
     assert len({r.target_area for r in res.layers[1:]}) == 1
     assert res.layers[0].target_area == pytest.approx(res.layers[1].target_area, rel=1e-6)
     assert res.rotary_words > 0
@@ -198,19 +204,11 @@ def test_repeated_layers_share_their_twin_target(monkeypatch):
         assert r.max_outside <= 1e-3 + 2e-4, f"layer {r.layer}: {r.max_outside} mm outside"
 
 
-def test_repeated_layers_share_a_tile_in_every_batch(monkeypatch):
+def test_repeated_layers_share_a_tile_in_every_batch(union_sizes, monkeypatch):
     """The twins of a later batch share one tile too, though their first copy was built in
     an earlier batch: batches of two layers, one layer's beads each after the first."""
     data = _square_layers(5, first_differs=True)
-    seen = []
-    real = pp_targets.bead_union
-
-    def spy(p0, p1, r, **kw):
-        seen.append(len(p0))
-        return real(p0, p1, r, **kw)
-
-    monkeypatch.setattr(pp_targets, "bead_union", spy)
     monkeypatch.setattr(pp_targets, "_BATCH_AREA", 400.0)  # two 12 mm tiles a batch
     _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
     n = [r.moves for r in res.layers]
-    assert seen == [n[0] + n[1], n[2], n[4]]
+    assert union_sizes == [n[0] + n[1], n[2], n[4]]
