@@ -87,3 +87,46 @@ def test_prusaslicer_reports_a_failing_script(prusa_slicer, shared_data, tmp_pat
                f"{sys.executable} -m plugin.prusaslicer --nozzle blob:d=1")
     assert r.returncode != 0
     assert "unknown nozzle kind" in r.stdout + r.stderr
+
+
+def test_the_cubes_repeated_layers_share_their_union(prusa_slicer, shared_data, tmp_path,
+                                                    monkeypatch):
+    """The real cube repeats a third of its layers to the bit: their beads go into the union
+    once (the beads built are those of the distinct layers, counted here from the slicer's
+    own chords), and a repeated layer's deposition stays inside its own G."""
+    import printability.targets as pp_targets
+    from printability.postprocess import PostprocessOptions, postprocess_bytes
+    from printability.settings import Settings
+    from printability.sources.gcode import layer_beads
+
+    out = tmp_path / "cube.gcode"
+    r = _slice(prusa_slicer, shared_data / "stl" / "CalibrationCube.stl", out)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-2000:]
+    data = out.read_bytes()
+    g = parse_gcode(data)
+    seg, width, _, _, bounds, _ = layer_beads(g, settings=Settings(quad_segs=32))
+    first_of: dict[bytes, int] = {}
+    twins = []
+    distinct_beads = 0
+    for k in range(len(g.layers)):
+        rows = np.arange(bounds[k], bounds[k + 1])
+        rows = rows[np.isfinite(width[rows]) & (width[rows] > 0)]
+        if not rows.size:
+            continue
+        key = np.column_stack([seg["x0"][rows], seg["y0"][rows], seg["x1"][rows],
+                               seg["y1"][rows], width[rows]]).tobytes()
+        if key in first_of:
+            twins.append(k)
+        else:
+            first_of[key] = k
+            distinct_beads += rows.size
+    assert len(twins) >= 10
+    built = []
+    real = pp_targets.bead_union
+    monkeypatch.setattr(pp_targets, "bead_union",
+                        lambda p0, p1, rad, **kw: built.append(len(p0)) or real(p0, p1, rad, **kw))
+    new, _ = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
+    assert len(built) == 1 and built[0] == distinct_beads  # the cube is one batch
+    reports = check_deposition(extrusion_chords(parse_gcode(new)), geos_targets(g),
+                               parse_nozzle(ELLIPSE), layers=twins[-2:])
+    assert len(reports) == 2 and all(rep.max_outside <= 1e-3 + 2e-4 for rep in reports), reports
