@@ -22,7 +22,7 @@ import numpy as np
 
 from printability.motion.beadunion import INNER, bead_union
 from printability.motion.footprints import grown_target
-from printability.motion.tiles import tile_layers
+from printability.motion.tiles import tile_index, tile_layers
 from printability.settings import Settings
 from printability.sources.gcode import layer_beads, layer_regions
 
@@ -196,17 +196,15 @@ def _tile_areas(u, tiling, batch: int, tolerance: float) -> list[float]:
 
 @numba.njit(cache=True, nogil=True)
 def _tile_sums(ex0, ey0, ex1, ey1, px, py, cols, n):  # pragma: no cover
-    """Per tile (:meth:`Tiling.tile_of` of each piece's midpoint): twice the signed area
-    of its pieces about the tile's corner and their length, summed in the pieces' order
-    (the arithmetic of ``np.bincount`` over the numpy expressions, in one pass); and
-    whether every piece lies in a tile."""
+    """Per tile (:func:`~printability.motion.tiles.tile_index` of each piece's midpoint):
+    twice the signed area of its pieces about the tile's corner and their length, summed in
+    the pieces' order (the arithmetic of ``np.bincount`` over the numpy expressions, in one
+    pass); and whether every piece lies in a tile."""
     twice = np.zeros(n)
     length = np.zeros(n)
     for e in range(len(ex0)):
-        ix = math.floor(((ex0[e] + ex1[e]) / 2) / px)
-        iy = math.floor(((ey0[e] + ey1[e]) / 2) / py)
-        j = iy * cols + ix
-        if ix < 0 or ix >= cols or iy < 0 or j >= n:
+        j = tile_index((ex0[e] + ex1[e]) / 2, (ey0[e] + ey1[e]) / 2, px, py, cols, n)
+        if j < 0:
             return twice, length, False
         ox = (j % cols) * px
         oy = (j // cols) * py

@@ -28,11 +28,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from printability.errors import InputError
 
-__all__ = ["Tiling", "tile_layers"]
+__all__ = ["Tiling", "tile_index", "tile_layers"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,14 +63,31 @@ class Tiling:
         return len(self.bounds) - 1
 
     def tile_of(self, batch: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """The layer (index within ``batch``, -1 outside every tile) of translated points."""
-        px, py = self.pitch[batch]
+        """The tile (index within ``batch``: its layer's, -1 outside every tile) of
+        translated points (:func:`tile_index`)."""
+        px, py = (float(v) for v in self.pitch[batch])
         n = int(self.bounds[batch + 1] - self.bounds[batch])
-        cols = int(self.cols[batch])
-        ix = np.floor(np.asarray(x, dtype=float) / px).astype(np.int64)
-        iy = np.floor(np.asarray(y, dtype=float) / py).astype(np.int64)
-        j = iy * cols + ix
-        return np.where((ix >= 0) & (ix < cols) & (iy >= 0) & (j < n), j, -1)
+        return _tiles_of(np.ascontiguousarray(x, dtype=float).reshape(-1),
+                         np.ascontiguousarray(y, dtype=float).reshape(-1), px, py,
+                         int(self.cols[batch]), n)
+
+
+@numba.njit(cache=True, nogil=True)
+def tile_index(x, y, px, py, cols, n):  # pragma: no cover
+    """The tile of the point (x, y) in a batch of ``n`` tiles of ``pitch`` (px, py) laid
+    ``cols`` to a row, -1 outside every tile: the one rule for which tile a point is in."""
+    ix = math.floor(x / px)
+    iy = math.floor(y / py)
+    j = iy * cols + ix
+    return j if 0 <= ix < cols and iy >= 0 and j < n else -1
+
+
+@numba.njit(cache=True, nogil=True)
+def _tiles_of(x, y, px, py, cols, n):  # pragma: no cover
+    out = np.empty(len(x), np.int64)
+    for i in range(len(x)):
+        out[i] = tile_index(x[i], y[i], px, py, cols, n)
+    return out
 
 
 def tile_layers(lo: np.ndarray, hi: np.ndarray, weight: np.ndarray, *, gap: float,
