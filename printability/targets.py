@@ -52,11 +52,12 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     area). Layers are laid side by side (:mod:`printability.motion.tiles`) so that one
     union serves a batch; each tile holds the layer's beads and its ``planned`` moves
     (``(seg, order, bounds)``: chords, their order by layer and each layer's rows of
-    it) grown by ``reach``, the nozzle's radius. A layer that repeats an earlier one of
-    its batch to the bit (its beads and planned chords) is given that layer's translation
-    and adds nothing to the union (:func:`_layer_kinds`). A tolerance too small for
-    the bead union falls back to GEOS (the union, then a buffer), one layer per batch.
-    Targets are built on ``workers`` threads while the caller plans.
+    it, ``bounds`` one entry per layer of ``g`` and one more) grown by ``reach``, the
+    nozzle's radius. A layer that repeats an earlier one of its batch to the bit (its
+    beads and planned chords) is given that layer's translation and adds nothing to the
+    union (:func:`_layer_kinds`). A tolerance too small for the bead union falls back to
+    GEOS (the union, then a buffer), one layer per batch. Targets are built on
+    ``workers`` threads while the caller plans.
     """
     settings = Settings(quad_segs=quad_segs, workers=workers)
     seg, width, _, _, bounds, _ = layer_beads(g, settings=settings,
@@ -125,7 +126,7 @@ def _layer_kinds(seg, width, per_layer, layers, planned) -> np.ndarray:
     out = np.empty(len(layers), dtype=np.int64)
     for j, k in enumerate(layers):
         rows = per_layer[k]
-        mine = porder[pbounds[k]:pbounds[k + 1]] if k + 1 < len(pbounds) else porder[:0]
+        mine = porder[pbounds[k]:pbounds[k + 1]]
         key = (np.column_stack([seg["x0"][rows], seg["y0"][rows], seg["x1"][rows],
                                 seg["y1"][rows], width[rows]]).tobytes(),
                np.column_stack([pseg["x0"][mine], pseg["y0"][mine], pseg["x1"][mine],
@@ -159,9 +160,7 @@ def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
     # kept out of the box all the same)
     lay = np.asarray(layers, dtype=np.int64)
     pb = np.asarray(pbounds, dtype=np.int64)
-    inside = lay + 1 < len(pb)
-    a0 = np.where(inside, pb[np.minimum(lay, len(pb) - 1)], 0)
-    a1 = np.where(inside, pb[np.minimum(lay + 1, len(pb) - 1)], 0)
+    a0, a1 = pb[lay], pb[lay + 1]
     count = a1 - a0
     some = np.flatnonzero(count > 0)
     if some.size:
