@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 from machine_io.protocol import (
     FirmwareInfo,
@@ -85,6 +85,13 @@ class ConnectionMixin:
         self.transcript.write("Recv", text)
         return text
 
+    def _replies(self, deadline: float) -> Iterator[Reply]:
+        """The replies that arrive until ``deadline``, each parsed and observed."""
+        while (line := self._readline(deadline)) is not None:
+            reply = parse_reply(line)
+            self._observe(reply)
+            yield reply
+
     def _wait_banner(self, timeout: float) -> bool:
         deadline = time.monotonic() + timeout
         while True:
@@ -107,12 +114,7 @@ class ConnectionMixin:
             self._write(data)
             deadline = time.monotonic() + self.config.handshake_timeout
             refused = False
-            while True:
-                line = self._readline(deadline)
-                if line is None:
-                    break
-                reply = parse_reply(line)
-                self._observe(reply)
+            for reply in self._replies(deadline):
                 if reply.kind in ("error", "resend"):
                     # The M110 itself was refused (damaged on the wire): the ok that
                     # follows a Resend is not the handshake's.
@@ -145,24 +147,14 @@ class ConnectionMixin:
             self._write(command.encode() + b"\n")
             got: list[str] = []
             deadline = time.monotonic() + self.config.handshake_timeout
-            while True:
-                line = self._readline(deadline)
-                if line is None:
-                    break
-                reply = parse_reply(line)
-                self._observe(reply)
+            for reply in self._replies(deadline):
                 if wanted(reply):
                     got.append(reply.text)
                 elif reply.kind == "ok":
                     # Marlin puts the M114 report before the ok; some firmwares after it.
                     if got:
                         return got
-                    tail = time.monotonic() + 0.1
-                    while (extra := self._readline(tail)) is not None:
-                        r = parse_reply(extra)
-                        self._observe(r)
-                        if wanted(r):
-                            got.append(r.text)
+                    got += [r.text for r in self._replies(time.monotonic() + 0.1) if wanted(r)]
                     return got
             if got:
                 return got
