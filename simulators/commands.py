@@ -121,24 +121,10 @@ class CommandsMixin:
             yield ("sync",)
             return
         if code in ("M104", "M109"):
-            target = cmd.value("S", cmd.value("R"))
-            if target is not None:
-                self.hotend.set(target, self.now)
-            if code == "M109" and target is not None and target > 0:
-                heating_only = cmd.has_value("S")
-                if not (heating_only and self.hotend.temp(self.now) >= target):
-                    t = self.hotend.reach_time(self.now, self.fw.temp_window)
-                    yield ("time", t + self.fw.hotend_residency, "temp")
+            yield from self._heat(cmd, self.hotend, self.fw.hotend_residency, wait=code == "M109")
             return
         if code in ("M140", "M190"):
-            target = cmd.value("S", cmd.value("R"))
-            if target is not None:
-                self.bed.set(target, self.now)
-            if code == "M190" and target is not None and target > 0:
-                heating_only = cmd.has_value("S")
-                if not (heating_only and self.bed.temp(self.now) >= target):
-                    t = self.bed.reach_time(self.now, self.fw.temp_window)
-                    yield ("time", t + self.fw.bed_residency, "temp")
+            yield from self._heat(cmd, self.bed, self.fw.bed_residency, wait=code == "M190")
             return
         if code == "M105":
             self._emit("ok" + self._temp_report())
@@ -187,6 +173,18 @@ class CommandsMixin:
         if code in _NOOP:
             return
         self._unknown(cmd)
+
+    def _heat(self, cmd: Command, heater, residency: float, *, wait: bool):
+        """M104/M140 (set) and M109/M190 (``wait``: set, then wait until reached, unless
+        S asks only to heat and it is already hot enough) for one heater."""
+        target = cmd.value("S", cmd.value("R"))
+        if target is not None:
+            heater.set(target, self.now)
+        if wait and target is not None and target > 0:
+            heating_only = cmd.has_value("S")
+            if not (heating_only and heater.temp(self.now) >= target):
+                t = heater.reach_time(self.now, self.fw.temp_window)
+                yield ("time", t + residency, "temp")
 
     def _unknown(self, cmd: Command) -> None:
         self.stats.unknown += 1
