@@ -372,15 +372,17 @@ def plan_orientations(
         # row depends on its direction, width and previous orientation only)
         near, order = _cost_order(direction[bad], widths[bad], prev_bad, cands, beta, wtab,
                                   per, options)
+        limit = np.where(long_move, 8, len(cands))
         found, best = _search_ordered(prepared_target, pieces, p0[bad], p1[bad], near, order,
-                                      sc, limit=np.where(long_move, 8, len(cands)))
+                                      sc, limit=limit)
         angle[bad[found]] = best[found]
         rest = ~found
         if rest.any():
             split, (pm, pa, pb, pp) = _split_many(
                 prepared_target, pieces, p0[bad[rest]], p1[bad[rest]], direction[bad[rest]],
                 widths[bad[rest]], prev_bad[rest], cands, beta, wtab, per, nozzle, options,
-                None if sc is None else sc[rest], ordered=(near[rest], order[rest]))
+                None if sc is None else sc[rest], ordered=(near[rest], order[rest]),
+                tried=_tried(limit[rest], len(cands)))
             result_pieces.update(zip(bad[rest].tolist(), split, strict=True))
             rows = (bad[rest][pm], pa, pb, pp)
             angle[bad[rest]] = np.nan
@@ -480,14 +482,7 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
     if k == 0:
         return found, best
     ncand = near.shape[1]
-    # the cheapest first, in rounds of 4, 4 and the rest; a move takes part in the rounds
-    # starting below its limit
-    lim = np.full(k, ncand) if limit is None else np.asarray(limit)
-    count = np.zeros(k, dtype=np.int64)
-    for start, stop in ((0, min(4, ncand)), (min(4, ncand), min(8, ncand)),
-                        (min(8, ncand), ncand)):
-        if stop > start:
-            count = np.where(lim > start, stop, count)
+    count = _tried(np.full(k, ncand) if limit is None else np.asarray(limit), ncand)
     if fast and fp._fused(pieces):
         # the rounds only bounded the wasted tests: the first candidate that fits, in
         # order, is the one they find, and the kernel stops there
@@ -516,8 +511,20 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
     return found, best
 
 
+def _tried(limit: np.ndarray, ncand: int) -> np.ndarray:
+    """How many candidates :func:`_search_ordered` tries per move under ``limit``: the
+    cheapest first, in rounds of 4, 4 and the rest, a move taking part in the rounds that
+    start below its limit (a move it finds nothing for was refused at all of them)."""
+    count = np.zeros(len(limit), dtype=np.int64)
+    for start, stop in ((0, min(4, ncand)), (min(4, ncand), min(8, ncand)),
+                        (min(8, ncand), ncand)):
+        if stop > start:
+            count = np.where(limit > start, stop, count)
+    return count
+
+
 def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
-                options, scale=None, fast=True, ordered=None
+                options, scale=None, fast=True, ordered=None, tried=None
                 ) -> tuple[list[list[OrientedPiece]], tuple]:
     """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
@@ -528,7 +535,9 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     whole at every orientation and, where nothing fits, cut into pieces of
     twice ``split_length`` searched again. A few vectorised searches in all,
     whatever the number of moves. ``ordered`` is :func:`_cost_order`'s answer for these
-    moves when already known (only where ``prev`` has no NaN: here a NaN counts as 0).
+    moves when already known (only where ``prev`` has no NaN: here a NaN counts as 0), and
+    ``tried`` (with it) how many of each move's first candidates in that order the whole
+    move was already refused at: a move nothing is kept of starts its search after them.
 
     Returns the pieces of each move, and the same as arrays ``(move, t0, t1, angle)`` by
     move (:attr:`Plan.piece_rows`).
@@ -540,6 +549,7 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     if ordered is None or np.isnan(prev).any():
         prev = np.where(np.isnan(prev), 0.0, prev)
         near, order_all = _cost_order(direction, width, prev, cands, beta, wtab, per, options)
+        tried = None  # another order: what was refused is not its first candidates
     else:
         near, order_all = ordered
     top = np.take_along_axis(near, order_all[:, :2], axis=1)
@@ -567,8 +577,18 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
             # cos/sin of each move's two orientations, once, gathered per candidate
             rad = np.deg2rad(top)
             trig = (np.cos(rad)[iv_mv].reshape(-1), np.sin(rad)[iv_mv].reshape(-1))
-            first = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, gpos, gend,
-                               trig=trig)
+            # A move's last interval, trimmed most at both ends, lies inside every other
+            # one: where it fits at neither orientation, none of them fits (a footprint
+            # holds the footprint of any part of its move), so it is tried first and the
+            # others only where it fits, up to it (it is then the answer when they fail).
+            inner = gend - ncol
+            first = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, inner,
+                                  gend, trig=trig)
+            more = np.flatnonzero((first >= 0) & (inner > gpos))
+            if more.size:
+                outer = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None,
+                                      gpos[more], inner[more], trig=trig)
+                first[more] = np.where(outer >= 0, outer, first[more])
         else:
             first = fp._first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
                                          gend, fast=fast)
@@ -596,13 +616,16 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     idx = np.repeat(np.arange(n), 2).reshape(n, 2)[part]
     ta = ra_all[part]
     tb = rb_all[part]
+    # a whole move (nothing kept) skips the candidates it was refused at already
+    skip = np.zeros(idx.size, np.int64) if tried is None else \
+        np.where(kept[idx], 0, np.minimum(np.asarray(tried, np.int64)[idx], ncand))
     while idx.size:
         q0 = points_along(a, ba, idx, ta)
         q1 = points_along(a, ba, idx, tb)
         if fast and fp._fused(pieces) and ncand:
             # no limit: a part tries all its move's candidates, in order
             first = fp._first_fit(target, pieces, q0, q1, None if scale is None else scale[idx],
-                               None, near_ord, None, idx * ncand, idx * ncand + ncand,
+                               None, near_ord, None, idx * ncand + skip, idx * ncand + ncand,
                                gseg=np.arange(idx.size), trig=trig)
             found = first >= 0
             best = np.where(found, near_ord[first], np.nan)
@@ -623,6 +646,7 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         tb = (q + 1.0) * delta[which] + ra[which]
         last = np.cumsum(m) - 1
         tb[last] = rb
+        skip = np.zeros(idx.size, np.int64)
     # sorted by start and joined where adjacent at the same orientation (compiled: a
     # Python loop per piece cost more than the searches)
     pm, pa, pb, pp = merge_pieces(*(np.concatenate([f[c] for f in found_l]).astype(t)
