@@ -107,17 +107,32 @@ def _package_roots() -> list[Path]:
 
 
 def source_stamp(roots: Iterable[Path]) -> tuple[tuple[str, int, int], ...]:
-    """(path, mtime ns, size) of every ``.py`` file under ``roots``: what the server compares
-    to decide that the install changed under it. O(files)."""
+    """(path, mtime ns, size) of every ``.py`` file under ``roots``, sorted: what the server
+    compares before every request to decide that the install changed under it. O(files).
+
+    ``os.scandir`` rather than ``Path.rglob``, and ``__pycache__`` (hundreds of numba cache
+    files, no source) is not listed: 1 ms instead of 5 per request.
+    """
     out = []
-    for root in roots:
-        for p in sorted(Path(root).rglob("*.py")):
-            try:
-                st = p.stat()
-            except OSError:
-                continue
-            out.append((str(p), st.st_mtime_ns, st.st_size))
-    return tuple(out)
+    stack = [str(root) for root in roots]
+    while stack:
+        try:
+            entries = os.scandir(stack.pop())
+        except OSError:
+            continue
+        with entries:
+            for e in entries:
+                if e.name == "__pycache__":
+                    continue
+                try:
+                    if e.is_dir(follow_symlinks=False):
+                        stack.append(e.path)
+                    elif e.name.endswith(".py"):
+                        st = e.stat()
+                        out.append((e.path, st.st_mtime_ns, st.st_size))
+                except OSError:  # gone meanwhile
+                    continue
+    return tuple(sorted(out))
 
 
 def _run_command(argv: list[str], cwd: str, env: dict[str, str]) -> tuple[int, str, str]:
