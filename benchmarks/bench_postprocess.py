@@ -20,6 +20,10 @@ runs it: a new ``printability-postprocess`` process per file (the console
 script PrusaSlicer calls), whose time adds Python's and the libraries' start
 (imports, numba's start and its cached kernels: "plugin start", timed on the
 cube's first two layers). That second ratio is what a slicer's user waits for.
+With ``printability serve`` running, the plug-in's process is timed as a user
+installs it (from the project's wheel, in a virtual environment of its own) and
+from this environment: an editable install starts every process with
+setuptools' editable finder, which a user does not pay.
 
 Run::
 
@@ -98,17 +102,52 @@ def _process_cpu(pid: int | None) -> float:
 
 
 def plugin_run(path: Path, nozzle: str, *, server: str = "off",
-               server_pid: int | None = None) -> tuple[float, float]:
+               server_pid: int | None = None, bindir: Path | None = None
+               ) -> tuple[float, float]:
     """The plugin in a new process, as a slicer calls it (file rewritten in place), handing
     the run to the server at ``server`` if not "off"; (wall s, CPU s of the plugin process
-    and of the server)."""
-    exe = Path(sys.executable).with_name("printability-postprocess")
+    and of the server). ``bindir``: the environment whose ``printability-postprocess`` runs
+    (default: this one)."""
+    exe = (bindir or Path(sys.executable).parent) / "printability-postprocess"
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "plugin.prusaslicer"]
     c0 = _children_cpu() + _process_cpu(server_pid)
     t0 = time.perf_counter()
     subprocess.run([*cmd, "--nozzle", nozzle, "--machine", "ttr", str(path)], check=True,
                    capture_output=True, cwd=ROOT, env={**os.environ, "PRINTABILITY_SERVER": server})
     return time.perf_counter() - t0, _children_cpu() + _process_cpu(server_pid) - c0
+
+
+def user_install(tmp: Path) -> Path | None:
+    """A virtual environment with printability installed from its wheel, as a user installs
+    it (``pip install printability``), its dependencies taken from this environment; its
+    ``bin`` directory, or None when the wheel cannot be built here (no build backend).
+
+    A developer's editable install (``pip install -e``) starts every Python process with
+    setuptools' editable finder (about 25 ms: it imports ``pathlib``, ``urllib`` and more),
+    which a user's plug-in does not pay; the served plug-in is timed from both.
+    """
+    wheels, env = tmp / "wheel", tmp / "user-venv"
+    try:
+        subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w",
+                        str(wheels), str(ROOT)], check=True, capture_output=True)
+        subprocess.run([sys.executable, "-m", "venv", str(env)], check=True,
+                       capture_output=True)
+        subprocess.run([str(env / "bin" / "python"), "-m", "pip", "install", "-q",
+                        "--no-deps", "--no-index", *map(str, wheels.glob("*.whl"))],
+                       check=True, capture_output=True)
+    except (subprocess.CalledProcessError, OSError) as exc:
+        print(f"no user install ({exc}): the served plug-in is timed from this environment "
+              "only", file=sys.stderr)
+        return None
+    site = subprocess.run([str(env / "bin" / "python"), "-c",
+                           "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          check=True, capture_output=True, text=True).stdout.strip()
+    deps = subprocess.run([sys.executable, "-c",
+                           "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          check=True, capture_output=True, text=True).stdout.strip()
+    # a path line only: the .pth files of this environment (its editable finder) stay out
+    Path(site, "zz_dependencies.pth").write_text(deps + "\n")
+    return env / "bin"
 
 
 def start_server(address: str) -> subprocess.Popen:
@@ -178,10 +217,15 @@ def _run(exe: str, names: list[str], tmp: Path, args, address: str,
         return plugin_run(tiny, ELLIPSE, **kw)
 
     start_wall, start_cpu = _fastest(start_once() for _ in range(rep))
-    served = {"server": address, "server_pid": server.pid}
+    dev = {"server": address, "server_pid": server.pid}
+    user = user_install(tmp)
+    served = {**dev, "bindir": user} if user is not None else dev
     sv_wall, sv_cpu = _fastest(start_once(**served) for _ in range(rep))
+    dv_wall, dv_cpu = _fastest(start_once(**dev) for _ in range(rep))
     print(f"plugin start (the cube's first two layers): new process {start_wall:.2f} s wall, "
-          f"{start_cpu:.2f} s CPU; served {sv_wall:.2f} s wall, {sv_cpu:.2f} s CPU")
+          f"{start_cpu:.2f} s CPU; served {sv_wall:.3f} s wall, {sv_cpu:.3f} s CPU "
+          f"({'a user install' if user else 'this environment'}); served from this editable "
+          f"install {dv_wall:.3f} s wall, {dv_cpu:.3f} s CPU")
     print(f"{'part':<24}{'lines':>8}{'slice s':>10}{'CPU':>7}"
           f"{'ellipse s':>11}{'CPU':>7}{'ratio':>7}{'wall r':>7}{'lines/s':>10}{'vs AW':>7}"
           f"{'round s':>9}{'lines/s':>10}{'split':>7}{'dropped':>8}"
@@ -200,20 +244,23 @@ def _run(exe: str, names: list[str], tmp: Path, args, address: str,
 
         # rounds of every measurement in turn, so that the slicer and we share the
         # machine's drifts (the slicer's output is the same file every time)
-        rounds = {"slice": [], "work": [], "round": [], "plugin": [], "served": []}
+        rounds = {"slice": [], "work": [], "round": [], "plugin": [], "served": [],
+                  "dev": []}
         for _ in range(rep):
             rounds["slice"].append(slice_part(exe, DATA / name, out))
             rounds["work"].append(postprocess(data, ELLIPSE)[:2])
             rounds["round"].append(postprocess(data, "circle:d=0.4")[:2])
             rounds["plugin"].append(plugin_once())
             rounds["served"].append(plugin_once(**served))
+            rounds["dev"].append(plugin_once(**dev))
         s_wall, s_cpu = _fastest(rounds["slice"])
         e_wall, e_cpu = _fastest(rounds["work"])
         r_wall, r_cpu = _fastest(rounds["round"])
         p_wall, p_cpu = _fastest(rounds["plugin"])
         v_wall, v_cpu = _fastest(rounds["served"])
         paired.append((name, _paired(rounds["work"], rounds["slice"]),
-                       _paired(rounds["served"], rounds["slice"])))
+                       _paired(rounds["served"], rounds["slice"]),
+                       _paired(rounds["dev"], rounds["slice"])))
         if server.poll() is not None:
             print("the server stopped (its source files changed?): the served figures are "
                   "local runs", file=sys.stderr)
@@ -234,11 +281,13 @@ def _run(exe: str, names: list[str], tmp: Path, args, address: str,
           "wall r = the same for wall-clock times (both use threads); "
           f"vs AW = our lines/s (CPU) / ArcWelder's ~{ARCWELDER_LINES_PER_S:,} lines/s; "
           "plugin = a new printability-postprocess process per file, as the slicer runs it; "
-          "served = the same with `printability serve` running (plugin + server CPU)")
+          "served = the same with `printability serve` running (plugin + server CPU; the "
+          "plugin from a user install when one could be built, else this one)")
     print(f"paired ratios (median over the {rep} rounds of our CPU / the slicer's in the same "
           "round):")
-    for name, work, served_r in paired:
-        print(f"  {name[:23]:<24} the work {work:.2f}   served {served_r:.2f}")
+    for name, work, served_r, dev_r in paired:
+        print(f"  {name[:23]:<24} the work {work:.2f}   served {served_r:.2f}   "
+              f"served from the editable install {dev_r:.2f}")
     return 0
 
 
