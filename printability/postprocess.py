@@ -67,6 +67,7 @@ from printability.errors import FileFormatError, InputError, PrintabilityOSError
 from printability.machine import Machine, parse_machine
 from printability.motion.orientation import (
     OrientationOptions,
+    PieceMap,
     plan_orientations,
 )
 from printability.nozzle import Nozzle, parse_nozzle
@@ -410,8 +411,8 @@ def postprocess_bytes(
     seg_angle = np.zeros(len(seg))
     seg_fold = np.zeros(len(seg), dtype=bool)
     seg_width_laid = np.full(len(seg), np.nan)
-    seg_pieces: dict[int, list] = {}
-    rows_found: list[tuple] = []  # the same pieces as arrays, per batch
+    split_found: list[np.ndarray] = []  # the split chords, per batch
+    rows_found: list[tuple] = []  # their pieces as arrays, per batch
     reports: list[LayerReport] = []
     prev = 0.0
     for layers, offset, tgt, areas in batches:
@@ -436,9 +437,9 @@ def postprocess_bytes(
             seg_angle[idx] = plan.angle
             seg_fold[idx] = plan.fold
             seg_width_laid[idx] = plan.width
-            for i, pieces in plan.pieces.items():
-                seg_pieces[int(idx[i])] = pieces
-            rows_found.append((idx[plan.piece_rows[0]], *plan.piece_rows[1:]))
+            if plan.pieces:
+                split_found.append(idx[np.fromiter(plan.pieces, np.int64, len(plan.pieces))])
+                rows_found.append((idx[plan.piece_rows[0]], *plan.piece_rows[1:]))
             finite = plan.angle[np.isfinite(plan.angle)]
             if finite.size:
                 prev = float(finite[-1])
@@ -447,10 +448,12 @@ def postprocess_bytes(
 
     # ---- rewrite
     piece_rows = None
+    seg_pieces: Mapping[int, list] = {}
     if rows_found:
         cols = [np.concatenate([r[c] for r in rows_found]) for c in range(4)]
         by_chord = np.argsort(cols[0], kind="stable")
         piece_rows = tuple(c[by_chord] for c in cols)
+        seg_pieces = PieceMap(np.concatenate(split_found), piece_rows)
     out, turned_per_layer = rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
                                     seg_width_laid, seg_pieces, widths, heights, wopts, turns,
                                     e_policy, nozzle, piece_rows=piece_rows)

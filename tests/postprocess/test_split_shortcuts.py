@@ -24,17 +24,38 @@ def test_split_shortcuts_keep_the_exhaustive_pieces(request, monkeypatch, fixtur
     seen = {"calls": 0, "skipped": 0, "pieces": 0}
 
     def checked(*args, **kw):
-        out, rows = split_many(*args, **kw)
-        ref = dict(kw, fast=False, tried=None)
-        _, ref_rows = split_many(*args, **ref)
+        rows = split_many(*args, **kw)
+        ref_rows = split_many(*args, **dict(kw, fast=False, tried=None))
         for got, want in zip(rows, ref_rows, strict=True):
             np.testing.assert_array_equal(got, want)
         seen["calls"] += 1
         seen["skipped"] += int(np.sum(kw["tried"])) if kw.get("tried") is not None else 0
         seen["pieces"] += len(rows[0])
-        return out, rows
+        return rows
 
     monkeypatch.setattr(orientation, "_split_many", checked)
     postprocess_bytes(data, options=PostprocessOptions(nozzle=nozzle, machine="ttr"))
     # the shortcuts were taken: moves were split, some after candidates already refused
     assert seen["calls"] > 0 and seen["pieces"] > 0 and seen["skipped"] > 0
+
+
+def test_piece_map_reads_as_the_dict_of_lists_it_replaces():
+    # moves 3 and 9 split, 5 dropped (no row); rows sorted by move, then as found
+    rows = (np.array([3, 3, 9]), np.array([0.0, 0.6, 0.1]), np.array([0.4, 1.0, 0.9]),
+            np.array([10.0, 190.0, -5.0]))
+    pieces = orientation.PieceMap(np.array([9, 5, 3]), rows)
+    eager = {9: [orientation.OrientedPiece(0.1, 0.9, -5.0)], 5: [],
+             3: [orientation.OrientedPiece(0.0, 0.4, 10.0),
+                 orientation.OrientedPiece(0.6, 1.0, 190.0)]}
+    assert list(pieces) == [9, 5, 3] and len(pieces) == 3
+    assert dict(pieces.items()) == eager and pieces == eager
+    assert 5 in pieces and 4 not in pieces and pieces.get(4) is None
+    assert pieces[3] is pieces[3]  # made once
+    with pytest.raises(KeyError):
+        pieces[4]
+    with pytest.raises(TypeError):
+        pieces[4] = []  # read-only
+    plan = orientation.Plan(angle=np.zeros(10), width=np.zeros(10), pieces=pieces,
+                            piece_rows=rows)
+    assert (plan.split_moves, plan.dropped_moves) == (2, 1)
+    np.testing.assert_array_equal(orientation.piece_rows_of(pieces)[0], rows[0])
