@@ -409,30 +409,53 @@ def plan_orientations(
         # turn least relative to the preferred chain (smooth along curves); the
         # smoothing pass below re-chains the orientations the search chose
         prev_bad = np.concatenate([[previous], angle[:-1]])[bad]
-        sc = None if scale is None else scale[bad]
+        todo = np.arange(bad.size)  # the bad moves the search and the split still take
+        exact = None
+        if turns:
+            # The other orientation laying the planned width, before the grid's (10° apart:
+            # they miss the width by up to a few hundredths of a mm, and a wider one
+            # cannot fit where G is just the planned bead): first on the whole move, then
+            # with the chain's in the split's search for the middle to keep.
+            alt = _other_solution(angle[bad], c1[bad], c2[bad], per, machine)
+            other = np.flatnonzero(alt != angle[bad])
+            if other.size:
+                hit = fp.fits(prepared_target, pieces, p0[bad[other]], p1[bad[other]],
+                              alt[other], scale=None if scale is None else scale[bad[other]])
+                angle[bad[other[hit]]] = alt[other[hit]]
+                todo = np.setdiff1d(todo, other[hit], assume_unique=True)
+            # taken to the grid's range, then unwrapped near the previous orientation as
+            # the grid is (_cost_terms): an exact orientation that is a grid one (a turn
+            # of 90°, say) gets the same value, so pieces at it join
+            e = cands[0] + np.mod(np.column_stack([angle[bad[todo]], alt[todo]]) - cands[0],
+                                  per)
+            exact = e + per * np.round((prev_bad[todo][:, None] - e) / per)
+        mv = bad[todo]
+        prev_mv = prev_bad[todo]
+        sc = None if scale is None else scale[mv]
         # A long move that fails at its four cheapest orientations almost always fails at
         # its ends (corners, line ends): it goes straight to the split, which searches the
         # ends at every orientation; short moves are searched at every orientation here.
         step = options.split_length or max(0.05, nozzle.radius / 4)
-        long_move = np.hypot(*(p1[bad] - p0[bad]).T) > 4 * step
+        long_move = np.hypot(*(p1[mv] - p0[mv]).T) > 4 * step
         # the candidates in order of cost, once for the search and the split (a move's
         # row depends on its direction, width and previous orientation only)
-        near, order = _cost_order(direction[bad], widths[bad], prev_bad, cands, beta, wtab,
+        near, order = _cost_order(direction[mv], widths[mv], prev_mv, cands, beta, wtab,
                                   per, options)
         limit = np.where(long_move, 8, len(cands))
-        found, best = _search_ordered(prepared_target, pieces, p0[bad], p1[bad], near, order,
+        found, best = _search_ordered(prepared_target, pieces, p0[mv], p1[mv], near, order,
                                       sc, limit=limit)
-        angle[bad[found]] = best[found]
+        angle[mv[found]] = best[found]
         rest = ~found
         if rest.any():
             pm, pa, pb, pp = _split_many(
-                prepared_target, pieces, p0[bad[rest]], p1[bad[rest]], direction[bad[rest]],
-                widths[bad[rest]], prev_bad[rest], cands, beta, wtab, per, nozzle, options,
+                prepared_target, pieces, p0[mv[rest]], p1[mv[rest]], direction[mv[rest]],
+                widths[mv[rest]], prev_mv[rest], cands, beta, wtab, per, nozzle, options,
                 None if sc is None else sc[rest], ordered=(near[rest], order[rest]),
-                tried=_tried(limit[rest], len(cands)))
-            rows = (bad[rest][pm], pa, pb, pp)
-            result_pieces = PieceMap(bad[rest], rows)
-            angle[bad[rest]] = np.nan
+                tried=_tried(limit[rest], len(cands)),
+                exact=None if exact is None else exact[rest])
+            rows = (mv[rest][pm], pa, pb, pp)
+            result_pieces = PieceMap(mv[rest], rows)
+            angle[mv[rest]] = np.nan
     if turns and n > 1:
         angle = _smooth(angle, bad, c1, c2, per, previous, prepared_target, pieces, p0, p1,
                         scale, machine)
@@ -478,6 +501,21 @@ def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scal
         # a rejected proposal keeps its old orientation, unwrapped near its neighbour
         out[keep] = angle[keep]
     return out
+
+
+def _other_solution(pick, c1, c2, per, machine):
+    """Per move, the orientation laying the planned width that the chain did not pick
+    (``c1`` or ``c2``, unwrapped near ``pick``); ``pick`` itself where there is one only
+    or the other is out of the axis' reach."""
+    d1 = np.abs(np.mod(pick - c1 + per / 2, per) - per / 2)
+    d2 = np.abs(np.mod(pick - c2 + per / 2, per) - per / 2)
+    raw = np.where(d1 <= d2, c2, c1)
+    alt = raw + per * np.round((pick - raw) / per)
+    same = np.minimum(d1, d2) > 1e-9  # the pick is neither (out of reach: clipped)
+    same |= np.abs(np.mod(alt - pick + per / 2, per) - per / 2) < 1e-9
+    if machine.kind == "ttr" and machine.angle_max - machine.angle_min < per - 1e-9:
+        same |= ~_reachable(alt, machine, per)
+    return np.where(same, pick, alt)
 
 
 def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
@@ -570,8 +608,42 @@ def _tried(limit: np.ndarray, ncand: int) -> np.ndarray:
     return count
 
 
+def _first_interval(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, top, todo, fast):
+    """For the moves ``todo`` (of :func:`split_intervals`' moves, intervals ``q0 → q1``
+    of moves ``iv_mv``, CSR ``ivpos``), the first of their (interval, orientation)
+    candidates that fits (-1: none), with every candidate's orientation and interval:
+    per move the intervals by decreasing span, then generation order, each at the
+    move's ``top`` orientations (n, ncol) in turn; the longest that fits wins, the
+    first generated among equals.
+    """
+    ncol = top.shape[1]
+    cand_iv = np.repeat(np.arange(iv_mv.size), ncol)
+    phis = top[iv_mv].reshape(-1)
+    gpos = ivpos[:-1][todo] * ncol
+    gend = ivpos[1:][todo] * ncol
+    if not (fast and fp._fused(pieces)):
+        return (fp._first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
+                                        gend, fast=fast), phis, cand_iv)
+    # cos/sin of each move's orientations, once, gathered per candidate
+    rad = np.deg2rad(top)
+    trig = (np.cos(rad)[iv_mv].reshape(-1), np.sin(rad)[iv_mv].reshape(-1))
+    # A move's last interval, trimmed most at both ends, lies inside every other one:
+    # where it fits at none of the orientations, none of them fits (a footprint holds the
+    # footprint of any part of its move), so it is tried first and the others only where
+    # it fits, up to it (it is then the answer when they fail).
+    inner = gend - ncol
+    first = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, inner, gend,
+                          trig=trig)
+    more = np.flatnonzero((first >= 0) & (inner > gpos))
+    if more.size:
+        outer = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None,
+                              gpos[more], inner[more], trig=trig)
+        first[more] = np.where(outer >= 0, outer, first[more])
+    return first, phis, cand_iv
+
+
 def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
-                options, scale=None, fast=True, ordered=None, tried=None
+                options, scale=None, fast=True, ordered=None, tried=None, exact=None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
@@ -599,51 +671,33 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         tried = None  # another order: what was refused is not its first candidates
     else:
         near, order_all = ordered
-    top = np.take_along_axis(near, order_all[:, :2], axis=1)
     # the kept middle interval of every move (none: t1 <= t0)
     keep_t0 = np.zeros(n)
     keep_t1 = np.zeros(n)
     keep_phi = np.full(n, np.nan)
-    ncol = top.shape[1]
     # candidate intervals per move: trimmed by d = step/length, 2d, 4d… (d < 1/2) at the
-    # start, the end or both; each at the ncol cheapest orientations
+    # start, the end or both; each at a few orientations: the two laying the planned
+    # width (``exact``, (n, 2)) first, then, where no interval fits at them, the two
+    # cheapest of the grid
     iv_mv, iv_t0, iv_t1, moves, ivpos = split_intervals(length, float(step))
     if iv_mv.size:
-        # the longest interval that fits, the first generated among equals (argmax's
-        # choice): per move, intervals by decreasing span, then generation order, each at
-        # its ncol orientations; the first that fits wins, so the rest are never tried
-        niv = iv_mv.size
-        cand_iv = np.repeat(np.arange(niv), ncol)
-        phis = top[iv_mv].reshape(-1)
         q0 = points_along(a, ba, iv_mv, iv_t0)
         q1 = points_along(a, ba, iv_mv, iv_t1)
-        gpos = ivpos[:-1] * ncol
-        gend = ivpos[1:] * ncol
         sc_iv = None if scale is None else scale[iv_mv]
-        if fast and fp._fused(pieces):
-            # cos/sin of each move's two orientations, once, gathered per candidate
-            rad = np.deg2rad(top)
-            trig = (np.cos(rad)[iv_mv].reshape(-1), np.sin(rad)[iv_mv].reshape(-1))
-            # A move's last interval, trimmed most at both ends, lies inside every other
-            # one: where it fits at neither orientation, none of them fits (a footprint
-            # holds the footprint of any part of its move), so it is tried first and the
-            # others only where it fits, up to it (it is then the answer when they fail).
-            inner = gend - ncol
-            first = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, inner,
-                                  gend, trig=trig)
-            more = np.flatnonzero((first >= 0) & (inner > gpos))
-            if more.size:
-                outer = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None,
-                                      gpos[more], inner[more], trig=trig)
-                first[more] = np.where(outer >= 0, outer, first[more])
-        else:
-            first = fp._first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
-                                         gend, fast=fast)
-        hit = first >= 0
-        j = first[hit]
-        keep_t0[moves[hit]] = iv_t0[cand_iv[j]]
-        keep_t1[moves[hit]] = iv_t1[cand_iv[j]]
-        keep_phi[moves[hit]] = phis[j]
+        grid_top = np.take_along_axis(near, order_all[:, :2], axis=1)
+        todo = np.arange(moves.size)
+        for top in (() if exact is None else (exact,)) + (grid_top,):
+            first, phis, cand_iv = _first_interval(target, pieces, q0, q1, sc_iv, iv_mv,
+                                                   ivpos, np.ascontiguousarray(top, float),
+                                                   todo, fast)
+            hit = first >= 0
+            j = first[hit]
+            keep_t0[moves[todo[hit]]] = iv_t0[cand_iv[j]]
+            keep_t1[moves[todo[hit]]] = iv_t1[cand_iv[j]]
+            keep_phi[moves[todo[hit]]] = phis[j]
+            todo = todo[~hit]
+            if todo.size == 0:
+                break
     kept = keep_t1 > keep_t0
     # the pieces found, as arrays (move, t0, t1, angle) in the order found, until merged
     found_l = [(np.flatnonzero(kept), keep_t0[kept], keep_t1[kept], keep_phi[kept])]

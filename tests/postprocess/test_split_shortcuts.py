@@ -59,3 +59,26 @@ def test_piece_map_reads_as_the_dict_of_lists_it_replaces():
                             piece_rows=rows)
     assert (plan.split_moves, plan.dropped_moves) == (2, 1)
     np.testing.assert_array_equal(orientation.piece_rows_of(pieces)[0], rows[0])
+
+
+@pytest.mark.parametrize("nozzle", ["ellipse:major=0.8,minor=0.3", "rect:w=0.7,h=0.25"])
+def test_the_kept_middle_of_a_split_move_lays_the_planned_width(nozzle):
+    # an L of two 0.45 mm beads: the first move ends in the corner, where the footprint
+    # laying 0.45 mm pokes out ahead, so it is split; along its middle only the planned
+    # width itself fits (the 10° grid's nearest orientations miss it by hundredths of a mm)
+    from printability.machine import parse_machine
+    from printability.motion.beadunion import bead_union
+    from printability.nozzle import parse_nozzle
+
+    w = 0.45
+    p0 = np.array([[0.0, 0.0], [10.0, 0.0]])
+    p1 = np.array([[10.0, 0.0], [10.0, 10.0]])
+    target = bead_union(p0, p1, np.full(2, w / 2), grow=1e-3)
+    noz, machine = parse_nozzle(nozzle), parse_machine("ttr")
+    plan = orientation.plan_orientations(p0, p1, np.full(2, w), target, noz, machine,
+                                         prepared_target=target)
+    assert 0 in plan.pieces
+    longest = max(plan.pieces[0], key=lambda p: p.t1 - p.t0)
+    assert longest.t1 - longest.t0 > 0.9
+    # within the width table's resolution (the grid's nearest miss by 0.015 mm or more)
+    assert noz.bead_width(0.0, longest.angle) == pytest.approx(w, abs=2e-3)
