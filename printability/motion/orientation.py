@@ -608,38 +608,82 @@ def _tried(limit: np.ndarray, ncand: int) -> np.ndarray:
     return count
 
 
-def _first_interval(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, top, todo, fast):
-    """For the moves ``todo`` (of :func:`split_intervals`' moves, intervals ``q0 → q1``
-    of moves ``iv_mv``, CSR ``ivpos``), the first of their (interval, orientation)
-    candidates that fits (-1: none), with every candidate's orientation and interval:
-    per move the intervals by decreasing span, then generation order, each at the
-    move's ``top`` orientations (n, ncol) in turn; the longest that fits wins, the
-    first generated among equals.
+def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast):
+    """Per move with intervals (:func:`split_intervals`: intervals ``q0 → q1`` of moves
+    ``iv_mv``, CSR ``ivpos``), the interval to keep and its orientation: the first set
+    of orientations of ``tops`` ((n, 2) each, in order) at which some interval fits,
+    and in that set the longest interval that fits (intervals by decreasing span, then
+    generation order, each at the set's orientations in turn). Returns the interval
+    per move (-1: none fits) and its orientation.
+
+    A move's last interval, trimmed most at both ends, lies inside every other one, and a
+    footprint holds the footprint of any part of its move: where that interval fits at
+    none of a set's orientations, no interval does. It is tried first, at every
+    orientation of every set in one pass; a set is then searched only for the moves
+    whose first fit there is in it, up to that interval (then the answer if nothing
+    longer fits).
     """
-    ncol = top.shape[1]
+    nm = len(ivpos) - 1
+    ncol = sum(t.shape[1] for t in tops)
+    allcols = np.ascontiguousarray(np.column_stack(tops), dtype=float)
+    col_set = np.repeat(np.arange(len(tops)), [t.shape[1] for t in tops])
     cand_iv = np.repeat(np.arange(iv_mv.size), ncol)
-    phis = top[iv_mv].reshape(-1)
-    gpos = ivpos[:-1][todo] * ncol
-    gend = ivpos[1:][todo] * ncol
+    phis = allcols[iv_mv].reshape(-1)
+    gpos = ivpos[:-1] * ncol
+    gend = ivpos[1:] * ncol
+    best_iv = np.full(nm, -1, np.int64)
+    best_phi = np.full(nm, np.nan)
     if not (fast and fp._fused(pieces)):
-        return (fp._first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv, phis, gpos,
-                                        gend, fast=fast), phis, cand_iv)
+        # the reference: every set in turn over every interval of the moves still without
+        # one, each candidate through shapely
+        lo = 0
+        for t in tops:
+            hi = lo + t.shape[1]
+            mv = np.flatnonzero(best_iv < 0)
+            cand, ends = _set_candidates(ivpos, mv, 0, lo, hi, ncol)
+            first = fp._first_fit_reference(target, pieces, q0, q1, sc_iv, cand_iv[cand],
+                                            phis[cand], ends - np.diff(ends, prepend=0), ends,
+                                            fast=fast)
+            ok = first >= 0
+            best_iv[mv[ok]] = cand_iv[cand[first[ok]]]
+            best_phi[mv[ok]] = phis[cand[first[ok]]]
+            lo = hi
+        return best_iv, best_phi
     # cos/sin of each move's orientations, once, gathered per candidate
-    rad = np.deg2rad(top)
+    rad = np.deg2rad(allcols)
     trig = (np.cos(rad)[iv_mv].reshape(-1), np.sin(rad)[iv_mv].reshape(-1))
-    # A move's last interval, trimmed most at both ends, lies inside every other one:
-    # where it fits at none of the orientations, none of them fits (a footprint holds the
-    # footprint of any part of its move), so it is tried first and the others only where
-    # it fits, up to it (it is then the answer when they fail).
     inner = gend - ncol
-    first = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, inner, gend,
+    probe = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, inner, gend,
                           trig=trig)
-    more = np.flatnonzero((first >= 0) & (inner > gpos))
-    if more.size:
-        outer = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None,
-                              gpos[more], inner[more], trig=trig)
-        first[more] = np.where(outer >= 0, outer, first[more])
-    return first, phis, cand_iv
+    lo = 0
+    for k, t in enumerate(tops):
+        hi = lo + t.shape[1]
+        mv = np.flatnonzero((probe >= 0) & (col_set[(probe - inner) % ncol] == k))
+        first = probe[mv]
+        # the set's orientations over the longer intervals, the groups holding those
+        # candidates only: candidate c of interval v is v·ncol + c
+        rows = np.flatnonzero(inner[mv] > gpos[mv])
+        if rows.size:
+            cand, ends = _set_candidates(ivpos, mv[rows], 1, lo, hi, ncol)
+            outer = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv[cand], phis[cand],
+                                  None, ends - np.diff(ends, prepend=0), ends,
+                                  trig=(trig[0][cand], trig[1][cand]))
+            first[rows] = np.where(outer >= 0, cand[np.maximum(outer, 0)], first[rows])
+        best_iv[mv] = cand_iv[first]
+        best_phi[mv] = phis[first]
+        lo = hi
+    return best_iv, best_phi
+
+
+def _set_candidates(ivpos, mv, drop_last, lo, hi, ncol):
+    """The candidates (interval v at column c: v·ncol + c) of moves ``mv``: their intervals
+    (all but the last ``drop_last``) at columns ``lo … hi - 1``, by move, then interval,
+    then column; and where each move's run ends (CSR ends)."""
+    n_iv = np.maximum(ivpos[mv + 1] - ivpos[mv] - drop_last, 0)
+    iv_of = np.repeat(ivpos[mv], n_iv) + (np.arange(n_iv.sum())
+                                          - np.repeat(np.cumsum(n_iv) - n_iv, n_iv))
+    cand = (iv_of[:, None] * ncol + np.arange(lo, hi)[None, :]).ravel()
+    return cand, np.cumsum(n_iv * (hi - lo))
 
 
 def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
@@ -685,19 +729,12 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         q1 = points_along(a, ba, iv_mv, iv_t1)
         sc_iv = None if scale is None else scale[iv_mv]
         grid_top = np.take_along_axis(near, order_all[:, :2], axis=1)
-        todo = np.arange(moves.size)
-        for top in (() if exact is None else (exact,)) + (grid_top,):
-            first, phis, cand_iv = _first_interval(target, pieces, q0, q1, sc_iv, iv_mv,
-                                                   ivpos, np.ascontiguousarray(top, float),
-                                                   todo, fast)
-            hit = first >= 0
-            j = first[hit]
-            keep_t0[moves[todo[hit]]] = iv_t0[cand_iv[j]]
-            keep_t1[moves[todo[hit]]] = iv_t1[cand_iv[j]]
-            keep_phi[moves[todo[hit]]] = phis[j]
-            todo = todo[~hit]
-            if todo.size == 0:
-                break
+        iv, phi = _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos,
+                                   ([] if exact is None else [exact]) + [grid_top], fast)
+        hit = iv >= 0
+        keep_t0[moves[hit]] = iv_t0[iv[hit]]
+        keep_t1[moves[hit]] = iv_t1[iv[hit]]
+        keep_phi[moves[hit]] = phi[hit]
     kept = keep_t1 > keep_t0
     # the pieces found, as arrays (move, t0, t1, angle) in the order found, until merged
     found_l = [(np.flatnonzero(kept), keep_t0[kept], keep_t1[kept], keep_phi[kept])]
