@@ -16,11 +16,14 @@ G):
 1. the *preferred* orientation of each move: the one whose bead width
    (:meth:`Nozzle.bead_width`) is closest to the planned width, among the
    equivalent solutions the one nearest the previous move's (turn least);
-2. for the moves that do not fit, other orientations in rounds of
-   increasing cost (width error first, then the turn);
-3. for the moves that still do not fit anywhere, the move is cut into pieces
-   no longer than ``split_length`` and each piece is searched alone; pieces
-   that fit nowhere are dropped, and reported.
+2. for the moves that do not fit, the other orientation laying that width, then
+   orientations of a grid (``search_step``) in rounds of increasing cost
+   (width error first, then the turn);
+3. for the moves that still do not fit anywhere, the longest middle that fits
+   at the two orientations laying the planned width (else at the grid's two
+   cheapest) is kept, and the rest is searched at every orientation, whole and
+   then in pieces no longer than ``split_length``; pieces that fit nowhere are
+   dropped, and reported.
 """
 
 from __future__ import annotations
@@ -692,7 +695,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
     A move usually fails because one end pokes out at a corner: first the
-    longest sub-interval that fits at one of the two cheapest orientations is
+    longest sub-interval that fits at one of the two orientations laying the planned
+    width (``exact``), or else at one of the grid's two cheapest, is
     found among intervals trimmed at the start, the end or both by
     geometrically growing lengths; each trimmed-off part is then searched
     whole at every orientation and, where nothing fits, cut into pieces of
