@@ -35,6 +35,7 @@ from shapely.geometry.base import BaseGeometry
 
 from printability.motion._boundary_grid import boundary_grid
 from printability.motion._kernels import cell_of as _cell
+from printability.motion._kernels import clip_step as _clip_step
 from printability.motion.beadunion import BeadUnion, union_contains_xy, union_covers
 
 __all__ = ["EPS", "_clip", "_edges_state", "_order", "contains_xy", "covers", "covers_rings"]
@@ -58,19 +59,8 @@ def _clip(ax, ay, bx, by, cu, su, h, off, order):  # pragma: no cover
     dy = by - ay
     for jj in range(len(order)):
         j = order[jj]
-        p = cu[j] * dx + su[j] * dy
-        q = h[j] + off - (cu[j] * ax + su[j] * ay)
-        if p == 0.0:
-            if q < 0.0:
-                return -1.0
-        elif p > 0.0:
-            t = q / p
-            if t < t1:
-                t1 = t
-        else:
-            t = q / p
-            if t > t0:
-                t0 = t
+        t0, t1 = _clip_step(cu[j] * dx + su[j] * dy, h[j] + off - (cu[j] * ax + su[j] * ay),
+                            t0, t1)
         if t1 < t0:
             return -1.0
     return t1 - t0

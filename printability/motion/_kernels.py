@@ -11,7 +11,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["bin_boxes", "cell_of", "point_segment2", "segment_offset", "segments2"]
+__all__ = ["bin_boxes", "cell_of", "clip_step", "point_segment2", "segment_offset", "segments2"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -23,6 +23,27 @@ def cell_of(v, v0, cell, n):  # pragma: no cover
     ``math.floor`` of a quotient, as a float ``//`` is compiled to a call to fmod.
     """
     return min(max(math.floor((v - v0) / cell), 0), n - 1)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def clip_step(p, q, t0, t1):  # pragma: no cover
+    """One Liang–Barsky step: the parameter interval [t0, t1] of a segment cut by the
+    half-plane ``p·t ≤ q`` (``p`` the direction's component along its normal, ``q`` the
+    start's room inside it); (1, 0), an empty interval, when the segment runs parallel
+    outside it. The footprint test and the bead union clip with it, each with its own
+    margins in ``q``."""
+    if p == 0.0:
+        if q < 0.0:
+            return 1.0, 0.0
+    elif p > 0.0:
+        t = q / p
+        if t < t1:
+            t1 = t
+    else:
+        t = q / p
+        if t > t0:
+            t0 = t
+    return t0, t1
 
 
 @numba.njit(cache=True, nogil=True)

@@ -70,6 +70,7 @@ import shapely
 from printability.errors import InputError
 from printability.motion._kernels import bin_boxes as _bin_boxes
 from printability.motion._kernels import cell_of as _cell
+from printability.motion._kernels import clip_step as _clip_step
 from printability.motion._kernels import point_segment2 as _point_segment2
 from printability.motion._kernels import segment_offset as _segment_offset
 from printability.motion._kernels import segments2 as _segments2
@@ -346,20 +347,9 @@ def _clip(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny):  # pragma: no 
 def _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1):  # pragma: no cover
     """One Liang–Barsky step of :func:`_clip`: [t0, t1] cut by half-plane ``j`` (an empty
     interval, t1 <= t0, when the edge runs parallel outside it)."""
-    p = ux[j] * dx + uy[j] * dy
-    q = h[j] + margin + turn * (1.0 - (ux[j] * nx + uy[j] * ny)) - (ux[j] * px + uy[j] * py)
-    if p == 0.0:
-        if q < 0.0:
-            return 1.0, 0.0
-    elif p > 0.0:
-        t = q / p
-        if t < t1:
-            t1 = t
-    else:
-        t = q / p
-        if t > t0:
-            t0 = t
-    return t0, t1
+    return _clip_step(ux[j] * dx + uy[j] * dy,
+                      h[j] + margin + turn * (1.0 - (ux[j] * nx + uy[j] * ny))
+                      - (ux[j] * px + uy[j] * py), t0, t1)
 
 
 _SAFE = 1e-8
