@@ -1,4 +1,4 @@
-"""Compiled helpers of the split search (printability.motion.orientation._split_many)
+"""Compiled helpers of the split search (printability.motion._search._split_many)
 against the numpy code they replaced: the same intervals, in the same order, to the bit."""
 
 from __future__ import annotations

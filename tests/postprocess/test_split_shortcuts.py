@@ -1,4 +1,4 @@
-"""The split search's shortcuts change no answer (printability.motion.orientation._split_many).
+"""The split search's shortcuts change no answer (printability.motion._search._split_many).
 
 The fused split tries a move's innermost interval first (where it fits nowhere, no interval
 of the move fits) and starts a whole move's search after the candidates the move was
