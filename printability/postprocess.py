@@ -119,8 +119,9 @@ class PostprocessOptions:
         Linearisation of arcs, mm.
     workers
         Threads that rebuild the layer targets (compiled kernels and GEOS
-        release the GIL) while the planner runs; None: one per CPU core, at
-        most 4.
+        release the GIL) while the planner runs, and that the planner's footprint
+        tests are shared out over; None: one per CPU core, at most 4. The output
+        is the same bytes on any number.
     output_name
         New final file name to hand back to the slicer through the
         ``<gcode>.output_name`` file (PrusaSlicer ≥ 2.4 convention); None
@@ -408,6 +409,7 @@ def postprocess_bytes(
         batches = iter(())
 
     # ---- plan every layer: batches of layers side by side, one target per batch
+    n_workers = _workers(options)
     seg_angle = np.zeros(len(seg))
     seg_fold = np.zeros(len(seg), dtype=bool)
     seg_width_laid = np.full(len(seg), np.nan)
@@ -433,7 +435,7 @@ def postprocess_bytes(
             plan = plan_orientations(p0, p1, widths[idx], tgt, nozzle, machine,
                                      options=options.orientation, previous=prev,
                                      prepared_target=tgt, chained=chained,
-                                     narrow_beads=narrow_beads)
+                                     narrow_beads=narrow_beads, workers=n_workers)
             seg_angle[idx] = plan.angle
             seg_fold[idx] = plan.fold
             seg_width_laid[idx] = plan.width

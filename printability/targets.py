@@ -57,7 +57,8 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     beads and planned chords) is given that layer's translation and adds nothing to the
     union (:func:`_layer_kinds`). A tolerance too small for the bead union falls back to
     GEOS (the union, then a buffer), one layer per batch. Targets are built on
-    ``workers`` threads while the caller plans.
+    ``workers`` threads while the caller plans; the first, which the caller waits for,
+    is itself shared out over them.
     """
     settings = Settings(quad_segs=quad_segs, workers=workers)
     seg, width, _, _, bounds, _ = layer_beads(g, settings=settings,
@@ -89,7 +90,7 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
             s = seg[rows]
             u = bead_union(np.column_stack([s["x0"], s["y0"]]) + shift,
                            np.column_stack([s["x1"], s["y1"]]) + shift, width[rows] / 2,
-                           grow=tolerance)
+                           grow=tolerance, workers=workers if b == 0 else 1)
             areas = _tile_areas(u, tiling, b, tolerance)
             return layers, tiling.offset[first + tile], u, [areas[j] for j in tile]
 

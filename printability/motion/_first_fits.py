@@ -22,7 +22,7 @@ from printability.motion._sweep import _deep_in_frame, _directions, _offsets, _s
 __all__ = ["first_fits"]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gseg, c0, s0, c1, s1,
                k, gpos, gend, cb, sb, det, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx,
                ny, packed, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx, lny, lax,

@@ -43,7 +43,8 @@ def _cost_order(direction, widths, prev, cands, beta, wtab, per, options):
     return near, np.argsort(key, axis=1, kind="stable")
 
 
-def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None, fast=True):
+def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None, fast=True, *,
+                    workers=1):
     """Per move, the first of its candidates ``near`` that fits, in their ``order`` of cost
     (at most ``limit`` per move, in rounds of 4, 4 and the rest: :func:`_tried`).
 
@@ -66,7 +67,7 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
                                                        < count[:, None]]
         gend = np.cumsum(count)
         first = fp._first_fit(target, pieces, p0, p1, scale, np.repeat(np.arange(k), count),
-                           phis, None, gend - count, gend)
+                           phis, None, gend - count, gend, workers=workers)
         found = first >= 0
         best[found] = phis[first[found]]
         return found, best
@@ -99,7 +100,7 @@ def _tried(limit: np.ndarray, ncand: int) -> np.ndarray:
     return count
 
 
-def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast):
+def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast, *, workers=1):
     """Per move with intervals (:func:`split_intervals`: intervals ``q0 → q1`` of moves
     ``iv_mv``, CSR ``ivpos``), the interval to keep and its orientation: the first set
     of orientations of ``tops`` ((n, 2) each, in order) at which some interval fits,
@@ -145,7 +146,7 @@ def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast):
     trig = (np.cos(rad)[iv_mv].reshape(-1), np.sin(rad)[iv_mv].reshape(-1))
     inner = gend - ncol
     probe = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, inner, gend,
-                          trig=trig)
+                          trig=trig, workers=workers)
     lo = 0
     for k, t in enumerate(tops):
         hi = lo + t.shape[1]
@@ -158,7 +159,7 @@ def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast):
             cand, ends = _set_candidates(ivpos, mv[rows], 1, lo, hi, ncol)
             outer = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv[cand], phis[cand],
                                   None, ends - np.diff(ends, prepend=0), ends,
-                                  trig=(trig[0][cand], trig[1][cand]))
+                                  trig=(trig[0][cand], trig[1][cand]), workers=workers)
             first[rows] = np.where(outer >= 0, cand[np.maximum(outer, 0)], first[rows])
         best_iv[mv] = cand_iv[first]
         best_phi[mv] = phis[first]
@@ -178,8 +179,8 @@ def _set_candidates(ivpos, mv, drop_last, lo, hi, ncol):
 
 
 def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
-                options, scale=None, fast=True, ordered=None, tried=None, exact=None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                options, scale=None, fast=True, ordered=None, tried=None, exact=None,
+                workers=1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
 
     A move usually fails because one end pokes out at a corner: first the
@@ -222,7 +223,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         sc_iv = None if scale is None else scale[iv_mv]
         grid_top = np.take_along_axis(near, order_all[:, :2], axis=1)
         iv, phi = _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos,
-                                   ([] if exact is None else [exact]) + [grid_top], fast)
+                                   ([] if exact is None else [exact]) + [grid_top], fast,
+                                   workers=workers)
         hit = iv >= 0
         keep_t0[moves[hit]] = iv_t0[iv[hit]]
         keep_t1[moves[hit]] = iv_t1[iv[hit]]
@@ -256,12 +258,13 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
             # no limit: a part tries all its move's candidates, in order
             first = fp._first_fit(target, pieces, q0, q1, None if scale is None else scale[idx],
                                None, near_ord, None, idx * ncand + skip, idx * ncand + ncand,
-                               gseg=np.arange(idx.size), trig=trig)
+                               gseg=np.arange(idx.size), trig=trig, workers=workers)
             found = first >= 0
             best = np.where(found, near_ord[first], np.nan)
         else:
             found, best = _search_ordered(target, pieces, q0, q1, near[idx], order_all[idx],
-                                          None if scale is None else scale[idx], fast=fast)
+                                          None if scale is None else scale[idx], fast=fast,
+                                          workers=workers)
         found_l.append((idx[found], ta[found], tb[found], best[found]))
         # the rest, straight to pieces of 2·`step` (smaller pieces fit more easily), cut as
         # np.linspace(ra, rb, m + 1) cuts them

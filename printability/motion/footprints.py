@@ -25,6 +25,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from printability._parallel import shared_out
 from printability.errors import InputError
 from printability.geometry import polygons_of
 from printability.motion.fastfit import (
@@ -140,6 +141,8 @@ def swept_rings(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.nd
 
 
 _EMPTY = np.zeros(0)
+_PARALLEL_MIN = 128
+"""Fewest groups of candidates :func:`_first_fit` gives a thread of its own."""
 
 
 def _piece_params(piece: ConvexPiece) -> tuple[int, float, float, float, float, float, float]:
@@ -225,7 +228,7 @@ def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
 
 def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1: np.ndarray,
          angle: np.ndarray, *, angle_end: np.ndarray | None = None,
-         scale: np.ndarray | None = None, fast: bool = True) -> np.ndarray:
+         scale: np.ndarray | None = None, fast: bool = True, workers: int = 1) -> np.ndarray:
     """Whether each move's swept footprint lies inside ``target`` (prepared, grown).
 
     ``fast`` decides what it can with the exact tests of
@@ -234,7 +237,7 @@ def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1
     or :func:`printability.motion.fastfit.covers_rings` (other pieces) and
     leaves only the rest to ``shapely.covers``; ``fast=False`` tests every
     footprint with ``shapely.covers`` (the reference the fast path must agree
-    with).
+    with). The fused tests run on ``workers`` threads.
 
     Returns a boolean array of shape (n,).
     """
@@ -244,7 +247,7 @@ def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1
     if fast and _fused(pieces):
         every = np.arange(n)
         return _first_fit(target, pieces, p0, p1, scale, every, angle, angle_end, every,
-                          every + 1) >= 0
+                          every + 1, workers=workers) >= 0
     return _fits_rings(target, pieces, p0, p1, angle, angle_end=angle_end, scale=scale,
                        fast=fast)
 
@@ -307,7 +310,7 @@ def _fused(pieces: Sequence[ConvexPiece]) -> bool:
 
 
 def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
-               directions: int = 64, *, gseg=None, trig=None) -> np.ndarray:
+               directions: int = 64, *, gseg=None, trig=None, workers: int = 1) -> np.ndarray:
     """Per group of candidates, the index of the first that fits (-1: none).
 
     Candidate ``q`` is segment ``seg[q]`` (of ``p0``, ``p1``, ``scale``) swept at
@@ -317,7 +320,8 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
     candidates); ``trig`` is ``(cos, sin)`` of the angles in radians when already
     known. The answer per candidate is :func:`fits`'s: footprints ∂G grazes go
     to :func:`covers_rings` with the rings of the same half-planes, and the group
-    resumes after a refusal.
+    resumes after a refusal. The groups are shared out over ``workers`` threads (the
+    kernel releases the GIL; each group's answer is its own, whichever thread tests it).
     """
     ngroups = len(gpos)
     result = np.full(ngroups, -1, dtype=np.int64)
@@ -351,9 +355,14 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
     while groups.size:
         out_idx = np.empty(groups.size, dtype=np.int64)
         out_state = np.empty(groups.size, dtype=np.int8)
-        first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, sc, seg,
-                   gseg[groups] if len(gseg) else gseg, c0, s0, c1, s1, k, gpos[groups],
-                   gend[groups], cb, sb, det, *grid, *loc, EPS, order, out_idx, out_state)
+        g_seg = gseg[groups] if len(gseg) else gseg
+        g_pos = gpos[groups]
+        g_end = gend[groups]
+        run = functools.partial(
+            _first_fits_part, (kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, sc, seg),
+            g_seg, (c0, s0, c1, s1, k), g_pos, g_end, (cb, sb, det, *grid, *loc, EPS, order),
+            out_idx, out_state)
+        shared_out(run, g_end - g_pos, workers, min_items=_PARALLEL_MIN)
         fit = out_state == 1
         result[groups[fit]] = out_idx[fit]
         und = np.flatnonzero(out_state == -1)
@@ -382,6 +391,13 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
         groups = groups[rest]
     return result
 
+
+
+def _first_fits_part(head, g_seg, trig, g_pos, g_end, tail, out_idx, out_state,
+                     part: slice) -> None:
+    """:func:`first_fits` on the groups of ``part`` (their answers in ``out_*[part]``)."""
+    first_fits(*head, g_seg[part] if len(g_seg) else g_seg, *trig, g_pos[part], g_end[part],
+               *tail, out_idx[part], out_state[part])
 
 
 def grown_target(target: BaseGeometry, tolerance: float) -> BaseGeometry:

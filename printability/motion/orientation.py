@@ -337,6 +337,7 @@ def plan_orientations(
     prepared_target: BaseGeometry | None = None,
     chained: np.ndarray | None = None,
     narrow_beads: bool = False,
+    workers: int = 1,
 ) -> Plan:
     """Choose an orientation for every extruding move of one layer.
 
@@ -369,6 +370,8 @@ def plan_orientations(
         *during* it when the footprint turning along the move still fits
         (``Plan.fold``); otherwise the nozzle turns standing still, not
         extruding.
+    workers
+        Threads the footprint tests are shared out over (the same plan on any number).
 
     Returns
     -------
@@ -395,7 +398,7 @@ def plan_orientations(
     else:
         angle = np.zeros(n)
 
-    ok = fp.fits(prepared_target, pieces, p0, p1, angle, scale=scale)
+    ok = fp.fits(prepared_target, pieces, p0, p1, angle, scale=scale, workers=workers)
     result_pieces: Mapping[int, list[OrientedPiece]] = {}
     rows = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0))
     bad = np.flatnonzero(~ok)
@@ -417,7 +420,8 @@ def plan_orientations(
             other = np.flatnonzero(alt != angle[bad])
             if other.size:
                 hit = fp.fits(prepared_target, pieces, p0[bad[other]], p1[bad[other]],
-                              alt[other], scale=None if scale is None else scale[bad[other]])
+                              alt[other], scale=None if scale is None else scale[bad[other]],
+                              workers=workers)
                 angle[bad[other[hit]]] = alt[other[hit]]
                 todo = np.setdiff1d(todo, other[hit], assume_unique=True)
             # taken to the grid's range, then unwrapped near the previous orientation as
@@ -440,7 +444,7 @@ def plan_orientations(
                                   per, options)
         limit = np.where(long_move, 8, len(cands))
         found, best = _search_ordered(prepared_target, pieces, p0[mv], p1[mv], near, order,
-                                      sc, limit=limit)
+                                      sc, limit=limit, workers=workers)
         angle[mv[found]] = best[found]
         rest = ~found
         if rest.any():
@@ -449,13 +453,13 @@ def plan_orientations(
                 widths[mv[rest]], prev_mv[rest], cands, beta, wtab, per, nozzle, options,
                 None if sc is None else sc[rest], ordered=(near[rest], order[rest]),
                 tried=_tried(limit[rest], len(cands)),
-                exact=None if exact is None else exact[rest])
+                exact=None if exact is None else exact[rest], workers=workers)
             rows = (mv[rest][pm], pa, pb, pp)
             result_pieces = PieceMap(mv[rest], rows)
             angle[mv[rest]] = np.nan
     if turns and n > 1:
         angle = _smooth(angle, bad, c1, c2, per, previous, prepared_target, pieces, p0, p1,
-                        scale, machine)
+                        scale, machine, workers=workers)
     fold = np.zeros(n, dtype=bool)
     if turns and chained is not None and n > 1:
         prev_a = np.concatenate([[np.nan], angle[:-1]])
@@ -464,7 +468,7 @@ def plan_orientations(
                               & (step <= options.fold_max))
         if cand.size:
             fold[cand] = fp.fits(prepared_target, pieces, p0[cand], p1[cand], prev_a[cand],
-                              angle_end=angle[cand])
+                              angle_end=angle[cand], workers=workers)
     width = np.full(n, np.nan)
     good = ~np.isnan(angle)
     rel = np.mod(angle[good] - direction[good], 360.0)
@@ -472,7 +476,8 @@ def plan_orientations(
     return Plan(angle=angle, width=width, pieces=result_pieces, fold=fold, piece_rows=rows)
 
 
-def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scale, machine):
+def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scale, machine, *,
+            workers=1):
     """Second pass: turn least given the orientations the search replaced.
 
     The preferred orientations were chained assuming every move fits; where
@@ -493,7 +498,7 @@ def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scal
     out = np.where(np.isfinite(prop), prop, angle)
     if test.size:
         ok = fp.fits(target, pieces, p0[test], p1[test], prop[test],
-                  scale=None if scale is None else scale[test])
+                     scale=None if scale is None else scale[test], workers=workers)
         keep = test[~ok]
         # a rejected proposal keeps its old orientation, unwrapped near its neighbour
         out[keep] = angle[keep]

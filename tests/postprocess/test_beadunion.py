@@ -206,3 +206,36 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
             windowed += max(ends) < k // 2
     # most edges here take the windowed path (the test would be vacuous otherwise)
     assert windowed > n * 400 // 3
+
+
+@pytest.mark.parametrize("workers", [2, 3])
+def test_threads_build_the_same_union_to_the_bit(shared_data, workers, monkeypatch):
+    """The boundary pieces of a busy layer computed on threads are the single thread's, in
+    the same order, and so is the area."""
+    import printability._parallel as par
+
+    g = parse_gcode((shared_data / "gcode" / "prusaslicer_2.7.4_marlin2_arcs.gcode").read_bytes())
+    seg, width, _, _, bounds, _ = layer_beads(g, settings=Settings(quad_segs=32),
+                                              filament_diameter=1.75)
+    # layers side by side, 300 mm apart, as the post-processor's batches lay them
+    p0, p1, r = [], [], []
+    for k in range(len(g.layers)):
+        rows = np.arange(bounds[k], bounds[k + 1])
+        rows = rows[np.isfinite(width[rows]) & (width[rows] > 0)]
+        s = seg[rows]
+        p0.append(np.column_stack([s["x0"] + 300 * k, s["y0"]]))
+        p1.append(np.column_stack([s["x1"] + 300 * k, s["y1"]]))
+        r.append(width[rows] / 2)
+        if sum(map(len, r)) >= 2 * workers * 1000:  # enough beads for a thread each
+            break
+    p0, p1, r = np.vstack(p0), np.vstack(p1), np.concatenate(r)
+    assert len(r) >= 2 * workers * 1000
+    one = bead_union(p0, p1, r, grow=TAU)
+    started = []
+    monkeypatch.setattr(par.threading.Thread, "start",
+                        lambda self, _s=par.threading.Thread.start: (started.append(1), _s(self)))
+    many = bead_union(p0, p1, r, grow=TAU, workers=workers)
+    assert len(started) == workers - 1
+    for name in ("ex0", "ey0", "ex1", "ey1"):
+        assert np.array_equal(getattr(one, name), getattr(many, name))
+    assert one.area == many.area and one.perimeter == many.perimeter

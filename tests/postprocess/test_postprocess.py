@@ -263,11 +263,22 @@ def test_split_moves_of_a_spiral_vase_keep_climbing(shared_data):
     assert ext.sum() > parse_gcode(data).moves["is_extrusion"].sum() * 0.5
 
 
-def test_threads_rebuilding_the_targets_change_nothing(shared_data):
+def test_threads_change_nothing(shared_data, monkeypatch):
+    """The targets built on threads, the first one shared out over them, and the planner's
+    footprint tests shared out too: the same bytes as on one thread."""
+    import printability._parallel as par
+
     data = (shared_data / "gcode" / "prusaslicer_2.7.4_marlin2_arcs.gcode").read_bytes()
-    outs = {w: postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
-                                                                  workers=w))[0]
-            for w in (1, 3)}
+    started = []
+    monkeypatch.setattr(par.threading.Thread, "start",
+                        lambda self, _s=par.threading.Thread.start: (started.append(1), _s(self)))
+    outs = {}
+    for w in (1, 3):
+        started.clear()
+        outs[w] = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
+                                                                     workers=w))[0]
+        shared = len(started)
+        assert (shared == 0) if w == 1 else (shared > 10)  # the union and the searches
     assert outs[1] == outs[3]
     with pytest.raises(InputError, match="workers must be at least 1"):
         postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, workers=0))
