@@ -50,6 +50,9 @@ def postprocess_command(
         None, "--output-name",
         help="Ask the slicer to save the result under this name (written to "
              "<gcode>.output_name, PrusaSlicer >= 2.4)."),
+    workers: int = typer.Option(0, "--workers", "-j", min=0,
+                                help="Threads (0: one per CPU core, at most 4); the output is "
+                                     "the same on any number."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
     server: str = typer.Option(
         "use", "--server",
@@ -67,6 +70,7 @@ def postprocess_command(
         feed_policy=FEED_POLICIES.check(feed_policy) if feed_policy else None,
         letter=letter, unwind=unwind, e_policy=E_POLICIES.check(e_policy),
         filament_diameter=filament_diameter, layer_height=layer_height, output_name=output_name,
+        workers=workers or None,
     )
     res = postprocess_file(gcode, options=opts, output=output)
     if quiet:

@@ -194,6 +194,18 @@ def test_cli_as_a_slicer_runs_it(prusa_short, tmp_path):
     assert r2.returncode == 0 and "already post-processed" in r2.stdout
 
 
+def test_cli_threads_option(prusa_short, tmp_path):
+    """``-j 1`` and ``-j 2`` write the same file."""
+    outs = []
+    for j in ("1", "2"):
+        out = tmp_path / f"j{j}.gcode"
+        r = _run_cli(["postprocess", "--nozzle", ELLIPSE, "--server", "off", "-j", j, "-o",
+                      str(out), str(prusa_short)])
+        assert r.returncode == 0, r.stderr
+        outs.append(out.read_bytes())
+    assert outs[0] == outs[1] and already_processed(outs[0])
+
+
 @pytest.mark.parametrize(("content", "nozzle", "expected"), [
     (b"G20\nG1 X1 Y1 Z0.2\nG1 X2 Y1 E0.1\n", ELLIPSE, "inches"),
     (b"G1 X1 Y1 Z0.2\nG1 X2 Y1 E0.1\n", "blob:d=1", "unknown nozzle kind"),
