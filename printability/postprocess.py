@@ -417,7 +417,7 @@ def postprocess_bytes(
     rows_found: list[tuple] = []  # their pieces as arrays, per batch
     reports: list[LayerReport] = []
     prev = 0.0
-    for layers, offset, tgt, areas in batches:
+    for layers, offset, tgt, areas, last in batches:
         rows = [order[bounds[k]:bounds[k + 1]] for k in layers]
         counts = np.array([r.size for r in rows], dtype=np.int64)
         idx = np.concatenate(rows) if rows else np.zeros(0, np.int64)
@@ -435,7 +435,9 @@ def postprocess_bytes(
             plan = plan_orientations(p0, p1, widths[idx], tgt, nozzle, machine,
                                      options=options.orientation, previous=prev,
                                      prepared_target=tgt, chained=chained,
-                                     narrow_beads=narrow_beads, workers=n_workers)
+                                     narrow_beads=narrow_beads,
+                                     # the cores are the targets' until the last is built
+                                     workers=n_workers if last else 1)
             seg_angle[idx] = plan.angle
             seg_fold[idx] = plan.fold
             seg_width_laid[idx] = plan.width

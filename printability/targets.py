@@ -39,10 +39,11 @@ _TILE_GAP = 1.0
 
 def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float, *,
                   workers: int = 1, planned: tuple, reach: float
-                  ) -> Iterator[tuple[list[int], np.ndarray, object, list[float]]]:
+                  ) -> Iterator[tuple[list[int], np.ndarray, object, list[float], bool]]:
     """The layers that have a target, in batches, in order: per batch (its layers, their
     translations (n, 2) mm, the prepared target the planner tests footprints against,
-    the area of G of each layer in mm²).
+    the area of G of each layer in mm², whether it is the last batch: no target is being
+    built any more).
 
     G is the union of the layer's beads as :mod:`printability.sources.gcode` rebuilds it
     (the same reconstruction as ``printability analyze``, so the two agree on what the
@@ -77,7 +78,7 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
 
         kind = _layer_kinds(seg, width, per_layer, with_target, planned)
 
-        def one(b: int) -> tuple[list[int], np.ndarray, object, list[float]]:
+        def one(b: int) -> tuple[list[int], np.ndarray, object, list[float], bool]:
             first, stop = int(tiling.bounds[b]), int(tiling.bounds[b + 1])
             layers = with_target[first:stop]
             # a layer identical to an earlier one of the batch is planned on that one's tile
@@ -92,7 +93,8 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
                            np.column_stack([s["x1"], s["y1"]]) + shift, width[rows] / 2,
                            grow=tolerance, workers=workers if b == 0 else 1)
             areas = _tile_areas(u, tiling, b, tolerance)
-            return layers, tiling.offset[first + tile], u, [areas[j] for j in tile]
+            return (layers, tiling.offset[first + tile], u, [areas[j] for j in tile],
+                    b == tiling.batches - 1)
 
         todo = list(range(tiling.batches))
         if workers <= 1:
@@ -106,9 +108,10 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
         regions[li] = geom if geom is not None and not geom.is_empty else None
     todo_l = [k for k in range(len(g.layers)) if regions[k] is not None]
 
-    def grown(k: int) -> tuple[list[int], np.ndarray, object, list[float]]:
+    def grown(k: int) -> tuple[list[int], np.ndarray, object, list[float], bool]:
         t = regions[k]
-        return [k], np.zeros((1, 2)), grown_target(t, tolerance), [float(t.area)]
+        return ([k], np.zeros((1, 2)), grown_target(t, tolerance), [float(t.area)],
+                k == todo_l[-1])
 
     if workers <= 1:
         return map(grown, todo_l)
