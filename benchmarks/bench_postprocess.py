@@ -12,7 +12,9 @@ figure is quoted, not measured here).
 
 Both wall and CPU times are given: on a shared machine the wall time of one
 process depends on the others, the CPU time much less. The slicer's CPU time
-is that of its child process (``resource.getrusage(RUSAGE_CHILDREN)``).
+is that of its child process (``resource.getrusage(RUSAGE_CHILDREN)``). Both
+tools use the machine's cores (we use one thread per core, at most 4: ``-j``), so
+the CPU time is the sum over threads and the wall time what a user waits for.
 
 Two figures for us: the work itself (``postprocess_bytes`` in this process,
 after a warm-up: what the library costs per file), and the plugin as a slicer
