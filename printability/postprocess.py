@@ -385,6 +385,7 @@ def postprocess_bytes(
         wopts = WriterOptions(**{**wopts.__dict__, "angle_min": -math.inf,
                                  "angle_max": math.inf})
 
+    n_workers = _workers(options)
     part = _part_mask(g)
     part_idx = np.flatnonzero(part)
     seg = g.segments(moves=moves[part_idx]) if part_idx.size and not narrow_beads else \
@@ -399,7 +400,7 @@ def postprocess_bytes(
         seg_layer = moves["layer"][seg_move]
         order = np.argsort(seg_layer, kind="stable")
         bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1))
-        batches = layer_targets(g, float(fd), quad_segs, tol_grow, workers=_workers(options),
+        batches = layer_targets(g, float(fd), quad_segs, tol_grow, workers=n_workers,
                                  planned=(seg, order, bounds), reach=nozzle.radius)
     else:
         seg_move = np.zeros(0, np.int64)
@@ -409,7 +410,6 @@ def postprocess_bytes(
         batches = iter(())
 
     # ---- plan every layer: batches of layers side by side, one target per batch
-    n_workers = _workers(options)
     seg_angle = np.zeros(len(seg))
     seg_fold = np.zeros(len(seg), dtype=bool)
     seg_width_laid = np.full(len(seg), np.nan)
