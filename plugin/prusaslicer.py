@@ -23,7 +23,6 @@ server declines or breaks off, it runs here (see
 from __future__ import annotations
 
 import os
-import shlex
 import sys
 
 __all__ = ["main"]
@@ -32,7 +31,11 @@ __all__ = ["main"]
 def build_argv(argv: list[str], environ: dict[str, str] | None = None) -> list[str]:
     """The ``printability`` command line for a slicer's call: options first, the G-code last."""
     environ = dict(os.environ) if environ is None else environ
-    extra = shlex.split(environ.get("PRINTABILITY_POSTPROCESS_ARGS", ""))
+    extra: list[str] = []
+    if environ.get("PRINTABILITY_POSTPROCESS_ARGS"):  # shlex only then: every export pays imports
+        import shlex
+
+        extra = shlex.split(environ["PRINTABILITY_POSTPROCESS_ARGS"])
     if not argv:
         return ["postprocess", "--help"]
     *options, gcode = argv
