@@ -173,7 +173,8 @@ def bead_area(width: float | np.ndarray, height: float, *, model: str = "rounded
         ``w·h``.
     """
     if model == "rounded":
-        w = np.maximum(width, height)
+        # a number without numpy's scalar cost (the writer asks once per move); same value
+        w = max(width, height) if isinstance(width, float) else np.maximum(width, height)
         return w * height - height * height * (1.0 - math.pi / 4.0)
     if model == "rectangle":
         return width * height

@@ -183,6 +183,10 @@ class Emitter:
         self._e_written = 0.0  # E counter as written (rounded), for absolute mode
         self._feed_written: str | None = None
         self.rotations = 0
+        # the text of the value last formatted per kind (X, Y, Z, rotary, F): the moves
+        # compare every coordinate with the current one, as written, and formatting is most
+        # of a move's cost; each entry is (value, decimals, text)
+        self._texts: dict[str, tuple[float, int, str]] = {}
 
     # ------------------------------------------------------------------ basics
     def raw(self, line: str) -> None:
@@ -215,15 +219,35 @@ class Emitter:
         return "".join(line + self.newline for line in self.lines)
 
     # ------------------------------------------------------------------ words
+    def _text(self, kind: str, value: float, decimals: int) -> str:
+        """:func:`format_number`, remembering the last value of each kind."""
+        last = self._texts.get(kind)
+        if last is not None and last[0] == value and last[1] == decimals:
+            return last[2]
+        text = format_number(value, decimals)
+        self._texts[kind] = (value, decimals, text)
+        return text
+
+    def _changed(self, kind: str, new: float, old: float | None, decimals: int) -> str | None:
+        """The text of ``new`` if it differs from ``old``'s as written (or ``old`` is
+        unknown), else None."""
+        if old is not None:
+            last = self._texts.get(kind)
+            if last is not None and last[0] == old and last[1] == decimals:
+                old_text = last[2]
+            else:
+                old_text = format_number(old, decimals)
+        text = self._text(kind, new, decimals)
+        return text if old is None or text != old_text else None
+
     def _xy_words(self, x: float | None, y: float | None, z: float | None) -> list[str]:
         d = self.options.xy_decimals
         words = []
-        if x is not None and (self.x is None or format_number(x, d) != format_number(self.x, d)):
-            words.append("X" + format_number(x, d))
-        if y is not None and (self.y is None or format_number(y, d) != format_number(self.y, d)):
-            words.append("Y" + format_number(y, d))
-        if z is not None and (self.z is None or format_number(z, d) != format_number(self.z, d)):
-            words.append("Z" + format_number(z, d))
+        for letter, new, old in (("X", x, self.x), ("Y", y, self.y), ("Z", z, self.z)):
+            if new is not None:
+                text = self._changed(letter, new, old, d)
+                if text is not None:
+                    words.append(letter + text)
         return words
 
     def _feed_word(self, feed: float, length: float, rotation: float,
@@ -234,7 +258,7 @@ class Emitter:
         else:
             f = feed_for_move(feed, length, rotation if o.rotary else 0.0,
                               policy=o.feed_policy, rotary_feed=o.rotary_feed)
-        text = format_number(f, o.feed_decimals if o.feed_policy != "inverse-time" else 4)
+        text = self._text("F", f, o.feed_decimals if o.feed_policy != "inverse-time" else 4)
         if o.feed_policy == "inverse-time" or force or text != self._feed_written:
             self._feed_written = text
             return ["F" + text]
@@ -249,18 +273,21 @@ class Emitter:
         return math.hypot((self.x if x is None else x) - self.x,
                           (self.y if y is None else y) - self.y)
 
-    def _rotary(self, orientation: float | None, *,
-                unwind: bool = False) -> tuple[list[str], float]:
+    def _rotary(self, orientation: float | None, *, unwind: bool = False,
+                target: float | None = None) -> tuple[list[str], float]:
+        """The rotary word to ``orientation`` (its axis coordinate ``target`` when already
+        known) and the step, updating the angle; none when it is the current one."""
         o = self.options
         if orientation is None or not o.rotary:
             return [], 0.0
-        target = o.coordinate(orientation, self.angle, unwind=unwind)
-        d = o.angle_decimals
-        if format_number(target, d) == format_number(self.angle, d):
+        if target is None:
+            target = o.coordinate(orientation, self.angle, unwind=unwind)
+        text = self._changed("R", target, self.angle, o.angle_decimals)
+        if text is None:
             return [], 0.0
         step = target - self.angle
         self.angle = target
-        return [o.letter + format_number(target, d)], step
+        return [o.letter + text], step
 
     def _move(self, cmd: str, x, y, z, words_extra: list[str], feed: float | None,
               rotation: float, length: float, comment: str | None) -> None:
@@ -365,9 +392,10 @@ class Emitter:
         step = 0.0
         if orientation is not None:
             o = self.options
-            if turn_while_moving is not None and o.rotary and abs(
-                    o.coordinate(orientation, self.angle) - self.angle) <= turn_while_moving + 1e-6:
-                extra, step = self._rotary(orientation)
+            target = o.coordinate(orientation, self.angle) \
+                if turn_while_moving is not None and o.rotary else None
+            if target is not None and abs(target - self.angle) <= turn_while_moving + 1e-6:
+                extra, step = self._rotary(orientation, target=target)
                 if step:
                     self.rotations += 1
             else:
