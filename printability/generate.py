@@ -39,6 +39,7 @@ import shapely.affinity
 
 from gcode.writer import Emitter, WriterOptions, header_lines
 from printability import __version__
+from printability._emit_kernel import emit, group_pieces
 from printability.errors import InputError, PrintabilityOSError
 from printability.layers import LayerStack
 from printability.machine import Machine, parse_machine
@@ -276,33 +277,24 @@ def generate_gcode(
             feed = v_first if li == 0 else (v_inf if grp.kind == "sparse_infill" else v_per)
             em.raw(f";TYPE:{_TYPE_NAMES[grp.kind]}")
             em.raw(f";WIDTH:{grp.width:g}")
-            for i in range(len(p0)):
-                seg_len = float(np.hypot(*(p1[i] - p0[i])))
-                layer_len += seg_len
-                if i in plan.pieces:
-                    pieces = [(p.t0, p.t1, p.angle) for p in plan.pieces[i]]
-                    layer_drop += seg_len * (1 - sum(b - a for a, b, _ in pieces))
-                else:
-                    pieces = [(0.0, 1.0, float(plan.angle[i]))]
-                for t0, t1, phi in pieces:
-                    a = p0[i] + t0 * (p1[i] - p0[i])
-                    b = p0[i] + t1 * (p1[i] - p0[i])
-                    if em.x is None or math.hypot(a[0] - em.x, a[1] - em.y) > 1e-6 or \
+            acc = np.array([extruded, layer_len, layer_drop, prev_angle])
+            run = _pieces(p0, p1, plan, noz, turns=turns, width=grp.width, acc=acc)
+            extruded, layer_len, layer_drop, prev_angle = acc.tolist()
+            travel = (v_trav, r_len, r_feed, r_min, lift)
+            done = emit(em, *run, z=layer.z, height=h, feed=feed, travel=travel,
+                        first_move=first_move)
+            if done is None:  # declined: the emitter itself (the same lines, or its error)
+                for ax, ay, bx, by, phi, w, fold in zip(*run, strict=True):
+                    if em.x is None or math.hypot(ax - em.x, ay - em.y) > 1e-6 or \
                             first_move:
-                        _travel(em, a, layer.z, phi if turns else None, v_trav, r_len, r_feed,
-                                r_min, lift)
+                        _travel(em, (ax, ay), layer.z, None if math.isnan(phi) else phi,
+                                *travel)
                         first_move = False
-                    direction = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
-                    w = noz.bead_width(direction, phi) if turns else grp.width
-                    w = min(w, grp.width) if not turns else w
-                    fold = None
-                    if i not in plan.pieces and plan.fold[i]:
-                        fold = abs(float(plan.angle[i] - plan.angle[i - 1]))
-                    em.extrude(float(b[0]), float(b[1]), feed=feed, width=w, height=h,
-                               orientation=phi if turns else None, turn_while_moving=fold)
-                    extruded += math.hypot(*(b - a))
-                    if turns:
-                        prev_angle = phi
+                    em.extrude(bx, by, feed=feed, width=w, height=h,
+                               orientation=None if math.isnan(phi) else phi,
+                               turn_while_moving=None if math.isnan(fold) else fold)
+            else:
+                first_move = done
             pos = np.array([em.x, em.y])
         dropped += layer_drop
         summary.append({"z": layer.z, "target_area": layer.area,
@@ -322,6 +314,71 @@ def generate_gcode(
                          rotations=em.rotations, elapsed=time.perf_counter() - t_start,
                          summary=tuple(summary))
     return text, res
+
+
+_KINDS = {"circle": 0, "ellipse": 0, "rect": 1}
+
+
+def _pieces(p0: np.ndarray, p1: np.ndarray, plan, noz: Nozzle, *, turns: bool, width: float,
+            acc: np.ndarray) -> tuple:
+    """The pieces of one group's moves as :func:`printability._emit_kernel.emit` takes them
+    (columns ax, ay, bx, by, phi, w, fold; NaN for no orientation, no turn while moving),
+    with ``acc = [extruded, layer length, layer dropped, last angle]`` updated in order.
+
+    Compiled (:func:`printability._emit_kernel.group_pieces`) for circles, ellipses and
+    rectangles; in Python, the same operations, for polygon orifices.
+    """
+    n = len(p0)
+    seg_len = np.hypot(p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1])
+    split = np.zeros(n, dtype=bool)
+    if plan.pieces:
+        split[np.fromiter(plan.pieces, np.int64, len(plan.pieces))] = True
+    move, rt0, rt1, rphi = (np.asarray(c) for c in plan.piece_rows)
+    if all(f.kind in _KINDS for f in noz.footprints):
+        lo = np.searchsorted(move, np.arange(n), "left")
+        hi = np.searchsorted(move, np.arange(n), "right")
+        fp = noz.footprints
+        return group_pieces(
+            np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
+            seg_len, np.asarray(plan.angle, dtype=float), np.asarray(plan.fold, dtype=bool),
+            split, lo, hi, rt0.astype(float), rt1.astype(float), rphi.astype(float),
+            turns, float(width), float(noz.mount_angle),
+            np.array([_KINDS[f.kind] for f in fp], dtype=np.int64),
+            *(np.array(v, dtype=float) for v in zip(*[(f.a, f.b, f.center[0], f.center[1],
+                                                       f.rotation) for f in fp], strict=True)),
+            acc)
+    extruded, layer_len, layer_drop, prev_angle = acc.tolist()
+    lens = seg_len.tolist()
+    angles = plan.angle.tolist()
+    folds = plan.fold.tolist()
+    starts = p0.tolist()
+    ends = p1.tolist()
+    run: tuple[list[float], ...] = ([], [], [], [], [], [], [])
+    for i in range(n):
+        ax0, ay0 = starts[i]
+        bx1, by1 = ends[i]
+        dx = bx1 - ax0
+        dy = by1 - ay0
+        layer_len += lens[i]
+        if split[i]:
+            pieces = [(p.t0, p.t1, p.angle) for p in plan.pieces[i]]
+            layer_drop += lens[i] * (1 - sum(b - a for a, b, _ in pieces))
+        else:
+            pieces = [(0.0, 1.0, angles[i])]
+        for t0, t1, phi in pieces:
+            ax, ay = ax0 + t0 * dx, ay0 + t0 * dy
+            bx, by = ax0 + t1 * dx, ay0 + t1 * dy
+            direction = math.degrees(math.atan2(by - ay, bx - ax))
+            w = noz.bead_width(direction, phi) if turns else width
+            fold = abs(angles[i] - angles[i - 1]) if not split[i] and folds[i] else math.nan
+            for column, v in zip(run, (ax, ay, bx, by, phi if turns else math.nan, w, fold),
+                                 strict=True):
+                column.append(v)
+            extruded += math.hypot(bx - ax, by - ay)
+            if turns:
+                prev_angle = phi
+    acc[:] = extruded, layer_len, layer_drop, prev_angle
+    return run
 
 
 def _travel(em: Emitter, to: np.ndarray, z: float, orientation: float | None, feed: float,
