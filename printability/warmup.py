@@ -80,7 +80,7 @@ def warm_up_gcode(*, layers: int = 3, relative_e: bool = True) -> bytes:
     return ("\n".join(lines) + "\n").encode("ascii")
 
 
-def warm_up(*, on_run=None) -> WarmUpResult:
+def warm_up(*, on_run=None, generate: bool = False) -> WarmUpResult:
     """Post-process :func:`warm_up_gcode` for each code path of the plug-in (see the module
     docs), compiling and caching every kernel it calls.
 
@@ -88,6 +88,9 @@ def warm_up(*, on_run=None) -> WarmUpResult:
     ----------
     on_run
         Called with ``(nozzle, machine)`` before each run (progress).
+    generate
+        Also run ``printability generate`` once (two layers of the same square, an ellipse
+        on T-T-R), for its own kernels: the compiled writer (about 10 s the first time).
 
     Returns
     -------
@@ -105,4 +108,20 @@ def warm_up(*, on_run=None) -> WarmUpResult:
         _, res = postprocess_bytes(data, path="<warm-up>",
                                    options=PostprocessOptions(nozzle=nozzle, machine=machine))
         runs.append((res.nozzle, res.machine, res.rotary_words))
+    if generate:
+        from shapely.geometry import Polygon
+
+        from printability.generate import GenerateOptions, generate_gcode
+        from printability.geometry import as_region
+        from printability.layers import Layer, LayerStack
+
+        nozzle, machine = _RUNS[0][:2]
+        if on_run is not None:
+            on_run(f"generate, {nozzle}", machine)
+        square = as_region(Polygon([(0, 0), (12, 0), (12, 12), (7, 12), (7, 6), (5, 6),
+                                    (5, 12), (0, 12)]))
+        stack = LayerStack(tuple(Layer(z=0.2 * (k + 1), height=0.2, region=square, index=k)
+                                 for k in range(2)), source="warm-up")
+        _, gres = generate_gcode(stack, nozzle, machine, options=GenerateOptions(center=False))
+        runs.append((f"generate {nozzle}", machine, gres.rotations))
     return WarmUpResult(tuple(runs), time.perf_counter() - t0)

@@ -11,13 +11,16 @@ __all__ = ["register", "warmup_command"]
 
 
 def warmup_command() -> None:
-    """Compile the kernels the slicer plug-in uses and cache them (about a minute, once after
-    installing or upgrading; seconds afterwards), so that a slicer's first export does not
-    wait for it."""
+    """Compile the kernels the slicer plug-in and ``generate`` use and cache them (about a
+    minute, once after installing or upgrading; seconds afterwards), so that a slicer's
+    first export does not wait for it."""
     from printability.warmup import warm_up
 
-    res = warm_up(on_run=lambda n, m: typer.echo(f"warm-up: post-processing for {n} on {m}",
-                                                  err=True))
+    def say(nozzle: str, machine: str) -> None:
+        what = nozzle if nozzle.startswith("generate") else f"post-processing for {nozzle}"
+        typer.echo(f"warm-up: {what} on {machine}", err=True)
+
+    res = warm_up(on_run=say, generate=True)
     typer.echo(f"kernels compiled and cached: {len(res.runs)} runs in {res.seconds:.1f} s")
 
 

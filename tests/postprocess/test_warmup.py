@@ -27,5 +27,6 @@ def test_warmup_command():
     out = subprocess.run([sys.executable, "-m", "printability", "warmup"], capture_output=True,
                          text=True, timeout=600)
     assert out.returncode == 0, out.stderr
-    assert "kernels compiled and cached: 4 runs" in out.stdout
+    assert "kernels compiled and cached: 5 runs" in out.stdout
     assert out.stderr.count("warm-up: post-processing for") == 4
+    assert out.stderr.count("warm-up: generate, ellipse") == 1
