@@ -180,17 +180,22 @@ def _feed(buf, n, ks, feed, length, rotation, oi, of):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _turn(fs, orientation, unwind, oi, of):  # pragma: no cover
-    """``Emitter._rotary`` without writing: (ok, a word to write, step). The angle becomes
-    the new coordinate when there is a word."""
+def _reach(orientation, previous, oi, of):  # pragma: no cover
+    """(found, c): ``WriterOptions.coordinate`` of ``orientation`` near ``previous``."""
+    return _nearest(orientation, previous, of[0], of[1], of[2], oi[10] != 0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _turn(fs, orientation, unwind, oi, of, target):  # pragma: no cover
+    """``Emitter._rotary`` without writing: (ok, a word to write, step), to the axis
+    coordinate ``target`` when known (else NaN). The angle becomes the new coordinate when
+    there is a word."""
     if math.isnan(orientation) or not oi[7]:
         return True, False, 0.0
-    lo = of[1]
-    hi = of[2]
-    found, target = _nearest(orientation, 0.0 if unwind else fs[_ANGLE], of[0], lo, hi,
-                             math.isinf(lo) and math.isinf(hi) and lo < 0 < hi)
-    if not found:
-        return False, False, 0.0
+    if math.isnan(target):
+        found, target = _reach(orientation, 0.0 if unwind else fs[_ANGLE], oi, of)
+        if not found:
+            return False, False, 0.0
     ok, mt = fixed_digits(target, oi[2])
     ok2, ma = fixed_digits(fs[_ANGLE], oi[2])
     if not (ok and ok2):
@@ -230,7 +235,7 @@ def _travel_move(buf, n, fs, ks, has_xy, x, y, has_z, z, feed, orientation, oi,
                  of):  # pragma: no cover
     """``Emitter.travel``: one line (or none); the new end, -1 when declined."""
     length = _length(fs, ks, has_xy, x, has_xy, y)
-    ok, word, step = _turn(fs, orientation, oi[8] != 0, oi, of)
+    ok, word, step = _turn(fs, orientation, oi[8] != 0, oi, of, math.nan)
     if not ok:
         return -1
     if step != 0.0:
@@ -289,7 +294,7 @@ def emit_pieces(ax, ay, bx, by, phi, width, fold, z, height, feed, trav, oi, of,
     ``trav = [travel feed, retraction length, its feed, shortest travel that
     retracts, lift]``) comes first where the nozzle is not at ``a`` (or on the
     layer's first move). ``oi = [xy, e, angle and F decimals, policy, relative E,
-    rounded bead, rotary, unwind, letter]`` and ``of = [period, angle min, max,
+    rounded bead, rotary, unwind, letter, axis without limits]`` and ``of = [period, angle min, max,
     rotation-only feed, filament area, 1 − π/4, 10^e decimals]`` are the writer's
     options. ``fs``, ``ks`` (the module's state) are updated in place.
 
@@ -350,23 +355,21 @@ def emit_pieces(ax, ay, bx, by, phi, width, fold, z, height, feed, trav, oi, of,
         word = False
         if not math.isnan(phi[q]):
             turned = False
+            target = math.nan  # the axis coordinate, once per piece
             if not math.isnan(fold[q]) and oi[7]:
-                lo = of[1]
-                hi = of[2]
-                found, target = _nearest(phi[q], fs[_ANGLE], of[0], lo, hi,
-                                         math.isinf(lo) and math.isinf(hi) and lo < 0 < hi)
+                found, target = _reach(phi[q], fs[_ANGLE], oi, of)
                 if not found:
                     return DECLINED, 0, buf
                 if abs(target - fs[_ANGLE]) <= fold[q] + 1e-6:
                     turned = True
-                    ok, word, step = _turn(fs, phi[q], False, oi, of)
+                    ok, word, step = _turn(fs, phi[q], False, oi, of, target)
                     if not ok:
                         return DECLINED, 0, buf
                     if step != 0.0:
                         ks[_ROT] += 1
             if not turned:
                 # Emitter.rotate: a rotation-only line first
-                ok, rword, rstep = _turn(fs, phi[q], False, oi, of)
+                ok, rword, rstep = _turn(fs, phi[q], False, oi, of, target)
                 if not ok:
                     return DECLINED, 0, buf
                 if rword:
@@ -529,8 +532,11 @@ def emit(em, ax, ay, bx, by, phi, width, fold, *, z: float, height: float, feed:
     fs = np.array([em.x or 0.0, em.y or 0.0, em.z or 0.0, em.angle, em.e, em._e_written])
     ks = np.array([em.x is not None, em.y is not None, em.z is not None, fw is not None, fm,
                    em.rotations, first_move], dtype=np.int64)
+    lo, hi = o.angle_min, o.angle_max
+    unbounded = math.isinf(lo) and math.isinf(hi) and lo < 0 < hi
     oi = np.array([*decimals, _POLICIES[o.feed_policy], o.relative_e,
-                   o.bead_model == "rounded", o.rotary, o.unwind, ord(o.letter)], dtype=np.int64)
+                   o.bead_model == "rounded", o.rotary, o.unwind, ord(o.letter), unbounded],
+                  dtype=np.int64)
     of = np.array([o.period or 360.0, o.angle_min, o.angle_max, o.rotary_feed,
                    math.pi * o.filament_diameter**2 / 4.0, 1.0 - math.pi / 4.0,
                    10.0 ** o.e_decimals])

@@ -87,7 +87,8 @@ def warm_up(*, on_run=None, generate: bool = False) -> WarmUpResult:
     Parameters
     ----------
     on_run
-        Called with ``(nozzle, machine)`` before each run (progress).
+        Called with ``(what, machine)`` before each run (progress): ``what`` is
+        "post-processing for <nozzle>" or "generating for <nozzle>".
     generate
         Also run ``printability generate`` once (two layers of the same square, an ellipse
         on T-T-R), for its own kernels: the compiled writer (about 10 s the first time).
@@ -103,7 +104,8 @@ def warm_up(*, on_run=None, generate: bool = False) -> WarmUpResult:
     runs = []
     for nozzle, machine, relative_e in _RUNS:
         if on_run is not None:
-            on_run(nozzle or "the slicer's round nozzle", machine)
+            name = nozzle or "the slicer's round nozzle"
+            on_run(f"post-processing for {name}", machine)
         data = warm_up_gcode(relative_e=relative_e)
         _, res = postprocess_bytes(data, path="<warm-up>",
                                    options=PostprocessOptions(nozzle=nozzle, machine=machine))
@@ -117,7 +119,7 @@ def warm_up(*, on_run=None, generate: bool = False) -> WarmUpResult:
 
         nozzle, machine = _RUNS[0][:2]
         if on_run is not None:
-            on_run(f"generate, {nozzle}", machine)
+            on_run(f"generating for {nozzle}", machine)
         square = as_region(Polygon([(0, 0), (12, 0), (12, 12), (7, 12), (7, 6), (5, 6),
                                     (5, 12), (0, 12)]))
         stack = LayerStack(tuple(Layer(z=0.2 * (k + 1), height=0.2, region=square, index=k)

@@ -16,11 +16,8 @@ def warmup_command() -> None:
     first export does not wait for it."""
     from printability.warmup import warm_up
 
-    def say(nozzle: str, machine: str) -> None:
-        what = nozzle if nozzle.startswith("generate") else f"post-processing for {nozzle}"
-        typer.echo(f"warm-up: {what} on {machine}", err=True)
-
-    res = warm_up(on_run=say, generate=True)
+    res = warm_up(on_run=lambda what, machine: typer.echo(f"warm-up: {what} on {machine}",
+                                                         err=True), generate=True)
     typer.echo(f"kernels compiled and cached: {len(res.runs)} runs in {res.seconds:.1f} s")
 
 

@@ -29,4 +29,4 @@ def test_warmup_command():
     assert out.returncode == 0, out.stderr
     assert "kernels compiled and cached: 5 runs" in out.stdout
     assert out.stderr.count("warm-up: post-processing for") == 4
-    assert out.stderr.count("warm-up: generate, ellipse") == 1
+    assert out.stderr.count("warm-up: generating for ellipse") == 1
