@@ -32,7 +32,6 @@ Nothing is asserted: the figures go in the README.
 from __future__ import annotations
 
 import argparse
-import shutil
 import statistics
 import sys
 import tempfile
@@ -40,7 +39,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_postprocess import DATA, ELLIPSE, slice_part
+from bench_postprocess import DATA, ELLIPSE, part_names, prusa_slicer, slice_part
 
 NOZZLES = ((ELLIPSE, "ttr"), ("circle:d=0.4", "xy"))
 
@@ -62,12 +61,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="two small parts only")
     ap.add_argument("--repeat", type=int, default=3, help="rounds (default 3), fastest kept")
     args = ap.parse_args(argv)
-    exe = shutil.which("prusa-slicer")
+    exe = prusa_slicer()
     if exe is None:
-        print("prusa-slicer is not installed (apt-get install prusa-slicer)", file=sys.stderr)
         return 1
-    names = ["CalibrationCube.stl", "ThinWall.stl"] if args.quick else \
-        sorted(p.name for p in DATA.glob("*.stl"))
+    names = part_names(quick=args.quick)
     generate(DATA / "CalibrationCube.stl", *NOZZLES[0])  # imports and cached kernels
     print(f"{'part':<24}{'slice s':>9}{'CPU':>7}{'lines':>9}{'lines/s':>10}"
           + "".join(f"{'gen ' + n.split(':')[0] + ' ' + m:>22}{'lines':>9}{'lines/s':>10}"

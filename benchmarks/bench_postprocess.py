@@ -67,6 +67,21 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def prusa_slicer() -> str | None:
+    """The ``prusa-slicer`` executable, or None (after saying how to install it)."""
+    exe = shutil.which("prusa-slicer")
+    if exe is None:
+        print("prusa-slicer is not installed (apt-get install prusa-slicer)", file=sys.stderr)
+    return exe
+
+
+def part_names(*, quick: bool) -> list[str]:
+    """The STLs of ../shared/data/stl a run measures: all, or the two small ones."""
+    if quick:
+        return ["CalibrationCube.stl", "ThinWall.stl"]
+    return sorted(p.name for p in DATA.glob("*.stl"))
+
+
 def slice_part(exe: str, stl: Path, out: Path) -> tuple[float, float]:
     """Slice with PrusaSlicer; (wall s, CPU s)."""
     c0 = _children_cpu()
@@ -183,12 +198,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="rounds of every measurement, the fastest kept (default 5): on a "
                          "shared machine one run of a small part varies by a third")
     args = ap.parse_args(argv)
-    exe = shutil.which("prusa-slicer")
+    exe = prusa_slicer()
     if exe is None:
-        print("prusa-slicer is not installed (apt-get install prusa-slicer)", file=sys.stderr)
         return 1
-    names = ["CalibrationCube.stl", "ThinWall.stl"] if args.quick else \
-        sorted(p.name for p in DATA.glob("*.stl"))
+    names = part_names(quick=args.quick)
     # warm up: imports and numba caches are paid once per process, not per file
     with tempfile.TemporaryDirectory() as tmp:
         os.chmod(tmp, 0o700)
