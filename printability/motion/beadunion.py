@@ -50,7 +50,9 @@ boundary crossings, so those gaps cannot mislead it.
 Each clip evaluates only the half-planes of C_j that face the edge's ends
 (:func:`_clip_near`): a plane that holds both ends by a margin cannot move the
 interval, so the result is the full loop's to the bit, at about a tenth of the
-planes.
+planes. An edge starts where the last one ended, so :func:`_boundary` keeps each
+neighbour's window of that corner (a third of the windows are found so), and the two
+ends' windows are evaluated as one arc where they overlap (:func:`_clip_windows`).
 
 Conventions: coordinates and lengths in mm; edges as four arrays
 (x0, y0, x1, y1). Cost: linear in the beads times the number of beads
@@ -418,12 +420,39 @@ def _clip_near(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, sax, say, 
     if w1 >= k // 2:
         return _clip(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny)
     j2, w2 = _window(qx, qy, sax, say, sbx, sby, lx, ly, rho, k, eps, vck)
-    if w2 >= k // 2:
+    return _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1, j2, w2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1, j2,
+                  w2):  # pragma: no cover
+    """:func:`_clip`'s interval over the half-planes of the two ends' windows ``(j, w)``
+    (:func:`_window`; all of them when either is ``w >= k // 2``).
+
+    Any superset of the planes the windows keep gives the same bits (min and max do not
+    depend on the order), so windows that overlap or nearly touch are evaluated as the one
+    arc that spans both, each plane once: the two ends of a short edge mostly face the
+    same few planes.
+    """
+    k = (b - a) // 2
+    if w1 >= k // 2 or w2 >= k // 2:
         return _clip(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny)
     t0 = 0.0
     t1 = 1.0
     dx = qx - px
     dy = qy - py
+    if w1 >= 0 and w2 >= 0:
+        # window 2 seen from window 1's centre, the shorter way round
+        delta = (j2 - j1 + k) % (2 * k) - k
+        lo = min(-w1, delta - w2)
+        hi = max(w1, delta + w2)
+        if hi - lo <= 2 * (w1 + w2) + 1:
+            for m in range(lo, hi + 1):
+                j = a + (j1 + m) % (2 * k)
+                t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
+                if t1 <= t0:
+                    return 1.0, 0.0
+            return t0, t1
     for end in range(2):
         js = j1 if end == 0 else j2
         w = w1 if end == 0 else w2
@@ -464,6 +493,11 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
     cap = max(1024, 8 * (hi - lo))
     out = np.empty((cap, 4))
     vc = _corner_cosines(off)
+    # per slot of ``near``: the corner (index into vx, vy) whose window against that
+    # neighbour is kept, and the window
+    w_at = np.full(n, -1, np.int64)
+    w_j = np.empty(n, np.int64)
+    w_w = np.empty(n, np.int64)
     n_out = 0
     for i in range(lo, hi):
         # the polygons that may overlap this one: the neighbours along the path first
@@ -514,7 +548,8 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
             # the cap at b (edges 1 … k-1) is mostly inside the next chord's polygon
             ahead = both and 0 < e < d // 2
             for mm in range(m):
-                j = near[1 - mm] if ahead and mm < 2 else near[mm]
+                sl = 1 - mm if ahead and mm < 2 else mm
+                j = near[sl]
                 if box[j, 0] > hi_x or box[j, 2] < lo_x or box[j, 1] > hi_y or box[j, 3] < lo_y:
                     continue
                 d2 = _point_segment2(mx, my, ax[j], ay[j], bx[j], by[j])
@@ -524,10 +559,23 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
                 if half < rho[j] - eps and d2 < (rho[j] - eps - half) ** 2:
                     covered = True  # inside the inscribed capsule, deeper than eps
                     break
-                t0, t1 = _clip_near(px, py, qx, qy, ux, uy, h, off[j], off[j + 1],
-                                    eps if j < i else -eps, eps, ux[q1], uy[q1], ax[j],
-                                    ay[j], bx[j], by[j], rho[j], eps,
-                                    vc[(off[j + 1] - off[j]) // 2])
+                # the windows of _clip_near; an edge's start is the last edge's end, whose
+                # window against this neighbour is kept from its clip
+                kj = (off[j + 1] - off[j]) // 2
+                if w_at[sl] == q0:
+                    j1 = w_j[sl]
+                    w1 = w_w[sl]
+                else:
+                    j1, w1 = _window(px, py, ax[j], ay[j], bx[j], by[j], ux[off[j]],
+                                     uy[off[j]], rho[j], kj, eps, vc[kj])
+                j2, w2 = _window(qx, qy, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]],
+                                 rho[j], kj, eps, vc[kj])
+                w_at[sl] = q1
+                w_j[sl] = j2
+                w_w[sl] = w2
+                t0, t1 = _clip_windows(px, py, qx, qy, ux, uy, h, off[j], off[j + 1],
+                                       eps if j < i else -eps, eps, ux[q1], uy[q1], j1, w1,
+                                       j2, w2)
                 if t1 > t0:
                     if t0 <= 0.0 and t1 >= 1.0:
                         covered = True
