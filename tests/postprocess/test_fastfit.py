@@ -135,6 +135,26 @@ def test_swept_kernel_is_the_numpy_path_to_the_bit(nozzle):
                 np.testing.assert_array_equal(x, y)
 
 
+
+def test_move_normals_are_the_left_unit_normals():
+    """The footprints' directions turn with the move's left normal, (1, 0) for a move of no
+    length: two of the 64 half-planes are then the long sides of the swept set."""
+    from printability.motion.footprints import _move_normals
+
+    p0 = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, -1.0], [5.0, 5.0]])
+    p1 = np.array([[3.0, 0.0], [1.0, 4.0], [-1.0, 3.0], [5.0, 5.0]])
+    cn, sn = _move_normals(p0, p1)
+    np.testing.assert_allclose(np.column_stack([cn, sn]),
+                               [[0.0, 1.0], [-1.0, 0.0], [-0.8, -0.6], [1.0, 0.0]], atol=1e-15)
+    rng = np.random.default_rng(5)
+    q0 = rng.uniform(-100, 100, (1000, 2))
+    q1 = q0 + rng.normal(0, 3, (1000, 2))
+    cn, sn = _move_normals(q0, q1)
+    d = q1 - q0
+    np.testing.assert_allclose(np.hypot(cn, sn), 1.0, rtol=1e-15)
+    np.testing.assert_allclose(cn * d[:, 0] + sn * d[:, 1], 0.0, atol=1e-12)  # normal
+    assert np.all(cn * d[:, 1] - sn * d[:, 0] < 0)  # to the left of the move
+
 def test_chain_nearest_is_the_python_loop():
     """The compiled chaining picks what the Python loop picked, ties and halves included."""
     from printability.motion._plan_kernels import chain_nearest
