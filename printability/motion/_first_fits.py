@@ -59,7 +59,8 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
       finds such an edge (the piece lies in the footprint's box and cells).
       Without a turn they are first tested against the ellipses swept
       (:func:`_deep_in_sweep`, before any half-plane is computed: most
-      candidates end there), then with :func:`_clip`;
+      candidates end there), then with :func:`_clip`; a segment's directions are found
+      only once one of its candidates gets past that test;
     * the point located is the segment's start where it lies in every
       footprint (pieces centred on the nozzle, not mirrored by a negative
       scale: their half-planes hold it, the rounding included, since the
@@ -82,6 +83,8 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
     mru_len = np.zeros(4)  # their lengths
     found = np.zeros(1, np.int64)
     where = -1  # start point of the segment: -1 not located yet, 0 outside, 1 inside
+    directed = False  # cu, su, w are the current segment's
+
     last = -1
     for g in range(len(gpos)):
         out_idx[g] = -1
@@ -89,10 +92,10 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
         for q in range(gpos[g], gend[g]):
             m = gseg[g] if len(gseg) else seg[q]
             if m != last:  # the candidates of a move share its directions
-                _directions(cn[m], sn[m], cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], cu,
-                            su, w)
                 last = m
                 where = -1
+                directed = False
+
             state = 1
             if not turning:
                 # the edges that refused the last footprints, tested against the ellipse
@@ -121,8 +124,13 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                         break
                 if state == 0:
                     continue
+            if not directed:  # (found only now: the shortcut above ends most candidates)
+                _directions(cn[m], sn[m], cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], cu,
+                            su, w)
+                directed = True
             for p in range(len(kind)):
                 _offsets(kind[p], pa[p], pb[p], pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q],
+
                          c1[q] if turning else 0.0, s1[q] if turning else 0.0,
                          k[q] if turning else 1.0, turning, scale[m] if scaled else 1.0, scaled,
                          cu, su, w, h)
