@@ -84,7 +84,6 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
     found = np.zeros(1, np.int64)
     where = -1  # start point of the segment: -1 not located yet, 0 outside, 1 inside
     directed = False  # cu, su, w are the current segment's
-
     last = -1
     for g in range(len(gpos)):
         out_idx[g] = -1
@@ -95,7 +94,6 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                 last = m
                 where = -1
                 directed = False
-
             state = 1
             if not turning:
                 # the edges that refused the last footprints, tested against the ellipse
@@ -130,7 +128,6 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                 directed = True
             for p in range(len(kind)):
                 _offsets(kind[p], pa[p], pb[p], pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q],
-
                          c1[q] if turning else 0.0, s1[q] if turning else 0.0,
                          k[q] if turning else 1.0, turning, scale[m] if scaled else 1.0, scaled,
                          cu, su, w, h)
