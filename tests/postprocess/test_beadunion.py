@@ -208,6 +208,56 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
     assert windowed > n * 400 // 3
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
+    """_clip_windows may take any windows that hold the planes the ends need: widened
+    windows, windows far apart or wrapping past plane 0, evaluated as one arc or two, give
+    the full loop's interval to the bit."""
+    from printability.motion.beadunion import (
+        _EPS,
+        INNER,
+        _clip,
+        _clip_windows,
+        _corner_cosines,
+        _polygons,
+        _window,
+    )
+
+    rng = np.random.default_rng(seed)
+    n = 30
+    ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
+    ang = rng.uniform(0, 2 * math.pi, n)
+    length = rng.choice([0.0, 0.3, 2.0], n)
+    bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
+    r = rng.uniform(0.15, 0.5, n)
+    rho, rmax = r + TAU / 2, r * INNER + TAU
+    off, ux, uy, h, *_ = _polygons(ax, ay, bx, by, rho, rmax)
+    vc = _corner_cosines(off)
+    arcs = 0
+    for j in range(n):
+        k = (off[j + 1] - off[j]) // 2
+        for i in range(300):
+            t = rng.uniform(-0.3, 1.3)
+            s = rng.uniform(0.8, 1.6) * rho[j] * np.exp(1j * rng.uniform(0, 2 * math.pi))
+            px = ax[j] + t * (bx[j] - ax[j]) + s.real
+            py = ay[j] + t * (by[j] - ay[j]) + s.imag
+            e = rng.uniform(0.001, rho[j]) * np.exp(1j * rng.uniform(0, 2 * math.pi))
+            qx, qy = px + e.real, py + e.imag
+            args = (px, py, qx, qy, ux, uy, h, off[j], off[j + 1], _EPS if i % 2 else -_EPS,
+                    _EPS, math.cos(i), math.sin(i))
+            w = [_window(x, y, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]], rho[j], k,
+                         _EPS, vc[k]) for x, y in ((px, py), (qx, qy))]
+            full = _clip(*args)
+            assert _clip_windows(*args, *w[0], *w[1]) == full
+            if max(w[0][1], w[1][1]) < k // 2:
+                # a window's centre moved round by whole turns, and widened by one plane
+                (j1, w1), (j2, w2) = w
+                wide = [(j1 + 2 * k * rng.integers(-2, 3), min(w1 + 1, k // 2 - 1) if w1 >= 0
+                         else w1), (j2 - 2 * k, w2)]
+                assert _clip_windows(*args, *wide[0], *wide[1]) == full
+                arcs += min(w1, w2) >= 0
+    assert arcs > n * 300 // 4  # both ends windowed: the one-arc path is exercised
+
 @pytest.mark.parametrize("workers", [2, 3])
 def test_threads_build_the_same_union_to_the_bit(shared_data, workers, monkeypatch):
     """The boundary pieces of a busy layer computed on threads are the single thread's, in
