@@ -160,32 +160,33 @@ def test_the_fused_search_decides_as_geos_on_a_bead_union(nozzle):
     assert fast.any() and not fast.all()
 
 
+def _random_polygons(rng, n, *, lengths, radii, tau):
+    """n bead polygons on random segments (lengths drawn from ``lengths``, radii uniform
+    in ``radii``): their ends, side offsets, half-planes and corner cosines."""
+    from printability.motion.beadunion import INNER, _corner_cosines, _polygons
+
+    ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
+    length = rng.choice(lengths, n)
+    ang = rng.uniform(0, 2 * math.pi, n)
+    bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
+    r = rng.uniform(*radii, n)
+    rho, rmax = r + tau / 2, r * INNER + tau
+    off, ux, uy, h, *_ = _polygons(ax, ay, bx, by, rho, rmax)
+    return ax, ay, bx, by, rho, off, ux, uy, h, _corner_cosines(off)
+
+
 @pytest.mark.parametrize("tau", [TAU, 1e-2, 0.1])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
     """_clip_near skips the half-planes that hold both ends of an edge by a margin; the
     interval must be the full Liang–Barsky loop's, bit for bit, for edges at any distance
     and direction from the polygon (near its sides, its caps and far from it)."""
-    from printability.motion.beadunion import (
-        _EPS,
-        INNER,
-        _clip,
-        _clip_near,
-        _corner_cosines,
-        _polygons,
-        _window,
-    )
+    from printability.motion.beadunion import _EPS, _clip, _clip_near, _window
 
     rng = np.random.default_rng(seed)
     n = 40
-    ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
-    length = rng.choice([0.0, 0.05, 1.0, 4.0], n)
-    ang = rng.uniform(0, 2 * math.pi, n)
-    bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
-    r = rng.uniform(0.1, 0.6, n)
-    rho, rmax = r + tau / 2, r * INNER + tau
-    off, ux, uy, h, *_ = _polygons(ax, ay, bx, by, rho, rmax)
-    vc = _corner_cosines(off)
+    ax, ay, bx, by, rho, off, ux, uy, h, vc = _random_polygons(
+        rng, n, lengths=[0.0, 0.05, 1.0, 4.0], radii=(0.1, 0.6), tau=tau)
     windowed = 0
     for j in range(n):
         k = (off[j + 1] - off[j]) // 2
@@ -213,26 +214,12 @@ def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
     """_clip_windows may take any windows that hold the planes the ends need: widened
     windows, windows far apart or wrapping past plane 0, evaluated as one arc or two, give
     the full loop's interval to the bit."""
-    from printability.motion.beadunion import (
-        _EPS,
-        INNER,
-        _clip,
-        _clip_windows,
-        _corner_cosines,
-        _polygons,
-        _window,
-    )
+    from printability.motion.beadunion import _EPS, _clip, _clip_windows, _window
 
     rng = np.random.default_rng(seed)
     n = 30
-    ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
-    ang = rng.uniform(0, 2 * math.pi, n)
-    length = rng.choice([0.0, 0.3, 2.0], n)
-    bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
-    r = rng.uniform(0.15, 0.5, n)
-    rho, rmax = r + TAU / 2, r * INNER + TAU
-    off, ux, uy, h, *_ = _polygons(ax, ay, bx, by, rho, rmax)
-    vc = _corner_cosines(off)
+    ax, ay, bx, by, rho, off, ux, uy, h, vc = _random_polygons(
+        rng, n, lengths=[0.0, 0.3, 2.0], radii=(0.15, 0.5), tau=TAU)
     arcs = 0
     for j in range(n):
         k = (off[j + 1] - off[j]) // 2
