@@ -48,7 +48,7 @@ by the polygons themselves (:func:`union_contains_xy`), never by counting
 boundary crossings, so those gaps cannot mislead it.
 
 Each clip evaluates only the half-planes of C_j that face the edge's ends
-(:func:`_clip_near`): a plane that holds both ends by a margin cannot move the
+(:func:`_window`, :func:`_clip_windows`): a plane that holds both ends by a margin cannot move the
 interval, so the result is the full loop's to the bit, at about a tenth of the
 planes. An edge starts where the last one ended, so :func:`_boundary` keeps each
 neighbour's window of that corner (a third of the windows are found so), and the two
@@ -368,7 +368,7 @@ def _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1):  # pragm
 
 
 _SAFE = 1e-8
-"""Margin (mm) by which a half-plane :func:`_clip_near` skips must hold both ends of the
+"""Margin (mm) by which a half-plane :func:`_clip_windows` skips must hold both ends of the
 edge: far above the rounding of the offsets (about 1e-13 mm), far below the bead sizes."""
 
 
@@ -402,32 +402,16 @@ def _window(x, y, ax, ay, bx, by, lx, ly, rho, k, eps, vck):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _clip_near(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, sax, say, sbx, sby,
-               rho, eps, vck):  # pragma: no cover
-    """:func:`_clip`'s interval, evaluating only the half-planes of C_j (``a:b``, segment
-    [sa, sb], side offset ``rho``) that :func:`_window` cannot rule out for either end.
-
-    A skipped plane holds both ends strictly, so its Liang–Barsky parameter lies beyond
-    [0, 1] on the side it bounds: it moves neither t0 nor t1, and the interval (hence
-    the boundary) is the full loop's to the bit. Most edges of a cap face a few planes
-    of a neighbour (about 6 of 54 at τ = 1e-3 mm); the full loop runs where the ends are
-    too far out for a window to save (w ≥ k/2).
-    """
-    k = (b - a) // 2
-    lx = ux[a]  # plane 0 is C_j's left side: its normal is the left normal
-    ly = uy[a]
-    j1, w1 = _window(px, py, sax, say, sbx, sby, lx, ly, rho, k, eps, vck)
-    if w1 >= k // 2:
-        return _clip(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny)
-    j2, w2 = _window(qx, qy, sax, say, sbx, sby, lx, ly, rho, k, eps, vck)
-    return _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1, j2, w2)
-
-
-@numba.njit(cache=True, nogil=True)
 def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1, j2,
                   w2):  # pragma: no cover
-    """:func:`_clip`'s interval over the half-planes of the two ends' windows ``(j, w)``
-    (:func:`_window`; all of them when either is ``w >= k // 2``).
+    """:func:`_clip`'s interval over the half-planes ``a:b`` of C_j in the two ends'
+    windows ``(j, w)`` (:func:`_window`; all of them when either is ``w >= k // 2``).
+
+    A plane outside both windows holds both ends strictly, so its Liang–Barsky parameter
+    lies beyond [0, 1] on the side it bounds: it moves neither t0 nor t1, and the
+    interval (hence the boundary) is the full loop's to the bit. Most edges of a cap face
+    a few planes of a neighbour (about 6 of 54 at τ = 1e-3 mm); the full loop runs where
+    the ends are too far out for a window to save (w ≥ k/2).
 
     Any superset of the planes the windows keep gives the same bits (min and max do not
     depend on the order), so windows that overlap or nearly touch are evaluated as the one
@@ -559,7 +543,7 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
                 if half < rho[j] - eps and d2 < (rho[j] - eps - half) ** 2:
                     covered = True  # inside the inscribed capsule, deeper than eps
                     break
-                # the windows of _clip_near; an edge's start is the last edge's end, whose
+                # the ends' windows; an edge's start is the last edge's end, whose
                 # window against this neighbour is kept from its clip
                 kj = (off[j + 1] - off[j]) // 2
                 if w_at[sl] == q0:

@@ -178,10 +178,10 @@ def _random_polygons(rng, n, *, lengths, radii, tau):
 @pytest.mark.parametrize("tau", [TAU, 1e-2, 0.1])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
-    """_clip_near skips the half-planes that hold both ends of an edge by a margin; the
+    """_clip_windows skips the half-planes that hold both ends of an edge by a margin; the
     interval must be the full Liang–Barsky loop's, bit for bit, for edges at any distance
     and direction from the polygon (near its sides, its caps and far from it)."""
-    from printability.motion.beadunion import _EPS, _clip, _clip_near, _window
+    from printability.motion.beadunion import _EPS, _clip, _clip_windows, _window
 
     rng = np.random.default_rng(seed)
     n = 40
@@ -200,11 +200,11 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
             args = (px[i], py[i], px[i] + e[i].real, py[i] + e[i].imag, ux, uy, h,
                     off[j], off[j + 1], _EPS if i % 2 else -_EPS, _EPS,
                     math.cos(i), math.sin(i))
-            near = _clip_near(*args, ax[j], ay[j], bx[j], by[j], rho[j], _EPS, vc[k])
-            assert near == _clip(*args)  # (an empty interval is (1, 0) in both)
             ends = [_window(x, y, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]], rho[j],
-                            k, _EPS, vc[k])[1] for x, y in (args[:2], args[2:4])]
-            windowed += max(ends) < k // 2
+                            k, _EPS, vc[k]) for x, y in (args[:2], args[2:4])]
+            near = _clip_windows(*args, *ends[0], *ends[1])
+            assert near == _clip(*args)  # (an empty interval is (1, 0) in both)
+            windowed += max(ends[0][1], ends[1][1]) < k // 2
     # most edges here take the windowed path (the test would be vacuous otherwise)
     assert windowed > n * 400 // 3
 
