@@ -271,6 +271,43 @@ def _half_turn_distance(beta: np.ndarray) -> np.ndarray:
     return _half_turn_distance_cached(np.ascontiguousarray(beta, dtype=float).tobytes())
 
 
+def _exact_widths(nozzle: Nozzle, w: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
+    """Per planned width ``w``, the relative orientation next to the table pick ``b``
+    (degrees) that lays ``w`` to within the bisection's last bit, never wider.
+
+    The table (:func:`width_table`, ``step`` apart) misses a width by up to
+    ``step/2`` × the slope: for the ellipse 0.8 × 0.3 and a 0.45 mm plan its 27.0°
+    lays 0.45096 mm, which leaves no room in a target that is just the planned bead
+    grown by τ/2 (τ = 1 µm): every such move was refused there and laid at a
+    narrower grid orientation instead. Here the width is bisected between ``b`` and
+    the neighbouring entry on the other side of ``w``, keeping the end that is not
+    wider (:meth:`~printability.nozzle.Nozzle.bead_widths`). Where neither
+    neighbour lies across ``w`` (a width beyond the nozzle's range, an extremum) the
+    pick stays. Cost: O(len(w)) per step of the bisection, 50 steps.
+    """
+    b = np.asarray(b, dtype=float)
+    out = b.copy()
+    zero = np.zeros_like(b)
+    wb = nozzle.bead_widths(zero, b)
+    below = nozzle.bead_widths(zero, b - step)
+    above = nozzle.bead_widths(zero, b + step)
+    wide = wb > w
+    # the neighbour across w: narrower than w where b is wider, wider where b is narrower
+    other = np.where(wide, np.where(below < w, b - step, np.where(above < w, b + step, np.nan)),
+                     np.where(below > w, b - step, np.where(above > w, b + step, np.nan)))
+    todo = np.isfinite(other) & (wb != w)
+    inner = np.where(wide, other, b)[todo]  # bead width <= w here
+    outer = np.where(wide, b, other)[todo]  # and > w here
+    target = w[todo]
+    for _ in range(50):  # 0.5° / 2**50 is below a degree's last bit
+        mid = 0.5 * (inner + outer)
+        fits = nozzle.bead_widths(np.zeros_like(mid), mid) <= target
+        inner = np.where(fits, mid, inner)
+        outer = np.where(fits, outer, mid)
+    out[todo] = inner
+    return out
+
+
 def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: Nozzle,
                            machine: Machine, *, previous: float = 0.0,
                            return_candidates: bool = False):
@@ -278,9 +315,10 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
 
     The bead width only depends on the orientation relative to the motion
     and repeats every 180°; of the (usually two) relative orientations that
-    give the width closest to the plan, the one whose equivalent is nearest
-    the previous move's orientation is taken. NaN widths prefer moving along
-    the nozzle's narrowest extent.
+    give the width closest to the plan (the width table's picks, then bisected to
+    lay the plan exactly and never wider: :func:`_exact_widths`), the one whose
+    equivalent is nearest the previous move's orientation is taken. NaN widths
+    prefer moving along the nozzle's narrowest extent.
     """
     n = len(direction)
     period = nozzle.symmetry_period
@@ -293,6 +331,9 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
     w, inverse = np.unique(w_all, return_inverse=True)
     b1, b2 = width_picks(np.ascontiguousarray(w), np.ascontiguousarray(wtab),
                          np.ascontiguousarray(beta), _half_turn_distance(beta))
+    step = float(beta[1] - beta[0])
+    b1 = _exact_widths(nozzle, w, b1, step)
+    b2 = _exact_widths(nozzle, w, b2, step)
     b1 = b1[inverse.reshape(-1)]
     b2 = b2[inverse.reshape(-1)]
     # candidates: direction + b (+180 is the same width), unwrap sequentially

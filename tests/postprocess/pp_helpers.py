@@ -7,7 +7,7 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
-__all__ = ["first_layers", "geos_targets", "lines_not_kept"]
+__all__ = ["first_layers", "geos_targets", "laid_widths", "lines_not_kept"]
 
 _C_WORD = re.compile(rb" C-?[0-9.]+")
 _INSERTED = re.compile(rb"^(G92 E-?[0-9.]+|G1 C-?[0-9.]+|; printability.*)\r?\n?$")
@@ -84,3 +84,44 @@ def geos_targets(g, filament_diameter: float = 1.75, quad_segs: int = 32) -> lis
                                           filament_diameter=filament_diameter):
         out[li] = geom if geom is not None and not geom.is_empty else None
     return out
+
+
+def laid_widths(data: bytes, nozzle: str, monkeypatch) -> tuple[float, float]:
+    """Post-process ``data`` for ``nozzle`` on T-T-R and measure what the plans lay:
+    ``(kept, exact)``, the fraction of the part's extruded length kept, and of what is
+    kept (with a planned width) the fraction laid within 5 µm of the slicer's planned
+    width (the bead width of each move or piece at its orientation, from
+    :meth:`Nozzle.bead_widths`, independent of the planner's own width table)."""
+    import numpy as np
+
+    import printability.postprocess as pp
+    from printability.nozzle import parse_nozzle
+
+    plans = []
+    real = pp.plan_orientations
+
+    def spy(p0, p1, widths, *args, **kwargs):
+        plan = real(p0, p1, widths, *args, **kwargs)
+        plans.append((p0, p1, np.asarray(widths, float), plan))
+        return plan
+
+    monkeypatch.setattr(pp, "plan_orientations", spy)
+    pp.postprocess_bytes(data, options=pp.PostprocessOptions(nozzle=nozzle, machine="ttr"))
+    nz = parse_nozzle(nozzle)
+    total = kept = planned = exact = 0.0
+    for p0, p1, widths, plan in plans:
+        d = p1 - p0
+        length = np.hypot(d[:, 0], d[:, 1])
+        direction = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+        whole = np.isfinite(plan.angle)
+        move, t0, t1, angle = plan.piece_rows
+        lens = np.concatenate([length[whole], length[move] * (t1 - t0)])
+        laid = np.concatenate([nz.bead_widths(direction[whole], plan.angle[whole]),
+                               nz.bead_widths(direction[move], angle)])
+        plan_w = np.concatenate([widths[whole], widths[move]])
+        has = np.isfinite(plan_w)
+        total += length.sum()
+        kept += lens.sum()
+        planned += lens[has].sum()
+        exact += lens[has][np.abs(laid[has] - plan_w[has]) <= 5e-3].sum()
+    return kept / total, exact / planned
