@@ -189,7 +189,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     found among intervals trimmed at the start, the end or both by
     geometrically growing lengths; each trimmed-off part is then searched
     whole at every orientation and, where nothing fits, cut into pieces of
-    twice ``split_length`` searched again. A few vectorised searches in all,
+    twice ``split_length`` searched again, and what still fits nowhere halved once
+    more (pieces down to ``split_length``). A few vectorised searches in all,
     whatever the number of moves. ``ordered`` is :func:`_cost_order`'s answer for these
     moves when already known (only where ``prev`` has no NaN: here a NaN counts as 0), and
     ``tried`` (with it) how many of each move's first candidates in that order the whole
@@ -233,7 +234,7 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     # the pieces found, as arrays (move, t0, t1, angle) in the order found, until merged
     found_l = [(np.flatnonzero(kept), keep_t0[kept], keep_t1[kept], keep_phi[kept])]
     # what is left of every move: each part searched whole at every orientation; a part
-    # that fits nowhere is halved (down to `step`) and searched again. A part's candidates
+    # that fits nowhere is cut (down to `step`) and searched again. A part's candidates
     # and their order are its move's (they depend on the direction, width and previous
     # orientation only). Parts by move, then position: the whole move where nothing was
     # kept, else the parts before and after the kept interval.
@@ -267,10 +268,14 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
                                           workers=workers)
         found_l.append((idx[found], ta[found], tb[found], best[found]))
         # the rest, straight to pieces of 2·`step` (smaller pieces fit more easily), cut as
-        # np.linspace(ra, rb, m + 1) cuts them
-        rest = ~found & (length[idx] * (tb - ta) > 2 * step * 1.000001)
+        # np.linspace(ra, rb, m + 1) cuts them; a part or piece of at most 2·`step` that
+        # fits nowhere is halved once more, down to `step` (an end at a corner, a short
+        # move: on the sample parts a fifth to a third less length is dropped)
+        span = length[idx] * (tb - ta)
+        rest = ~found & (span > step * 1.000001)
         i_r, ra, rb = idx[rest], ta[rest], tb[rest]
-        m = np.ceil(length[i_r] * (rb - ra) / (2 * step)).astype(np.int64)
+        span = span[rest]
+        m = np.where(span > 2 * step * 1.000001, np.ceil(span / (2 * step)), 2).astype(np.int64)
         delta = (rb - ra) / m
         which = np.repeat(np.arange(m.size), m)
         q = (np.arange(which.size) - np.repeat(np.cumsum(m) - m, m)).astype(float)

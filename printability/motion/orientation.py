@@ -21,8 +21,9 @@ G):
    (width error first, then the turn);
 3. for the moves that still do not fit anywhere, the longest middle that fits
    at the two orientations laying the planned width (else at the grid's two
-   cheapest) is kept, and the rest is searched at every orientation, whole and
-   then in pieces no longer than ``split_length``; pieces that fit nowhere are
+   cheapest) is kept, and the rest is searched at every orientation, whole, then
+   in pieces of up to twice ``split_length``, then the pieces that still fit
+   nowhere halved (down to ``split_length``); what fits nowhere then is
    dropped, and reported.
 """
 
@@ -83,8 +84,10 @@ class OrientationOptions:
         Orientations whose bead width is within this (mm) of the best
         achievable one are ranked by turn only.
     split_length
-        Longest piece a move that fits nowhere is cut into, mm (None: a
-        quarter of the nozzle radius, at least 0.05 mm).
+        The split's resolution, mm (None: a quarter of the nozzle radius, at
+        least 0.05 mm): what fits nowhere is cut into pieces of up to twice
+        this, and a piece that still fits nowhere is halved: what is dropped
+        goes in pieces of at most this length.
     fold_max
         Largest turn (degrees) made during an extruding move rather than
         standing still.
