@@ -286,7 +286,8 @@ def _exact_widths(nozzle: Nozzle, w: np.ndarray, b: np.ndarray, step: float) -> 
     the neighbouring entry on the other side of ``w``, keeping the end that is not
     wider (:meth:`~printability.nozzle.Nozzle.bead_widths`). Where neither
     neighbour lies across ``w`` (a width beyond the nozzle's range, an extremum) the
-    pick stays. Cost: O(len(w)) per step of the bisection, 50 steps.
+    pick stays. Cost: O(len(w)) per step of the bisection, about 50 steps (until every
+    bracket is down to adjacent floats).
     """
     b = np.asarray(b, dtype=float)
     out = b.copy()
@@ -302,9 +303,12 @@ def _exact_widths(nozzle: Nozzle, w: np.ndarray, b: np.ndarray, step: float) -> 
     inner = np.where(wide, other, b)[todo]  # bead width <= w here
     outer = np.where(wide, b, other)[todo]  # and > w here
     target = w[todo]
-    for _ in range(50):  # 0.5° / 2**50 is below a degree's last bit
+    zero = np.zeros_like(inner)
+    for _ in range(60):  # 0.5° / 2**50 is below a degree's last bit
         mid = 0.5 * (inner + outer)
-        fits = nozzle.bead_widths(np.zeros_like(mid), mid) <= target
+        if np.all((mid == inner) | (mid == outer)):
+            break  # every bracket is down to adjacent floats: more steps change nothing
+        fits = nozzle.bead_widths(zero, mid) <= target
         inner = np.where(fits, mid, inner)
         outer = np.where(fits, outer, mid)
     out[todo] = inner
@@ -334,9 +338,9 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
     w, inverse = np.unique(w_all, return_inverse=True)
     b1, b2 = width_picks(np.ascontiguousarray(w), np.ascontiguousarray(wtab),
                          np.ascontiguousarray(beta), _half_turn_distance(beta))
-    step = float(beta[1] - beta[0])
-    b1 = _exact_widths(nozzle, w, b1, step)
-    b2 = _exact_widths(nozzle, w, b2, step)
+    both = _exact_widths(nozzle, np.concatenate([w, w]), np.concatenate([b1, b2]),
+                         float(beta[1] - beta[0]))
+    b1, b2 = both[:w.size], both[w.size:]
     b1 = b1[inverse.reshape(-1)]
     b2 = b2[inverse.reshape(-1)]
     # candidates: direction + b (+180 is the same width), unwrap sequentially
