@@ -303,12 +303,14 @@ def _exact_widths(nozzle: Nozzle, w: np.ndarray, b: np.ndarray, step: float) -> 
     inner = np.where(wide, other, b)[todo]  # bead width <= w here
     outer = np.where(wide, b, other)[todo]  # and > w here
     target = w[todo]
-    zero = np.zeros_like(inner)
-    for _ in range(60):  # 0.5° / 2**50 is below a degree's last bit
+    along = np.zeros_like(inner)
+    # about 50 steps take a bracket of 0.5° to adjacent floats; the cap of 60 only binds
+    # next to 0°, where it leaves 0.5°/2**60, far below any width's rounding
+    for _ in range(60):
         mid = 0.5 * (inner + outer)
         if np.all((mid == inner) | (mid == outer)):
             break  # every bracket is down to adjacent floats: more steps change nothing
-        fits = nozzle.bead_widths(zero, mid) <= target
+        fits = nozzle.bead_widths(along, mid) <= target
         inner = np.where(fits, mid, inner)
         outer = np.where(fits, outer, mid)
     out[todo] = inner
