@@ -35,7 +35,7 @@ therefore exactly w/2 from ∂G; ``tolerance`` (default 1 µm, minus the
 rounding of the coordinates written) absorbs the rounding of coordinates and
 of the polygonal arcs. Footprints are tested against G grown by that
 tolerance, built as the union of one convex polygon per bead
-(:mod:`printability.motion.beadunion`: between G ⊕ τ/2 and G ⊕ τ, without a
+(:mod:`printability.motion.beadunion`: between G ⊕ 0.35τ and G ⊕ τ, without a
 GEOS overlay; built by :mod:`printability.targets`). Layers are planned in
 batches, laid side by side in one plane (:mod:`printability.motion.tiles`) so
 that one union and one planner call serve a batch. Non-part moves are left as

@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 
-from printability.motion.beadunion import INNER, bead_union
+from printability.motion.beadunion import INNER, SIDE, bead_union
 from printability.motion.footprints import grown_target
 from printability.motion.tiles import tile_index, tile_layers
 from printability.settings import Settings
@@ -49,9 +49,10 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     (the same reconstruction as ``printability analyze``, so the two agree on what the
     part is). The planner tests against G grown by ``tolerance``: the bead union of
     :mod:`printability.motion.beadunion`, built without an overlay, for which the area of
-    G is the union's less ``tolerance``/2 × its perimeter (within that much of the exact
-    area). Layers are laid side by side (:mod:`printability.motion.tiles`) so that one
-    union serves a batch; each tile holds the layer's beads and its ``planned`` moves
+    G is the union's less :data:`~printability.motion.beadunion.SIDE` × ``tolerance`` × its
+    perimeter (within that much of the exact area). Layers are laid side by side
+    (:mod:`printability.motion.tiles`) so that one union serves a batch; each tile holds
+    the layer's beads and its ``planned`` moves
     (``(seg, order, bounds)``: chords, their order by layer and each layer's rows of
     it, ``bounds`` one entry per layer of ``g`` and one more) grown by ``reach``, the
     nozzle's radius. A layer that repeats an earlier one of its batch to the bit (its
@@ -184,7 +185,7 @@ def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
 def _tile_areas(u, tiling, batch: int, tolerance: float) -> list[float]:
     """The area of G of each layer of a batch, mm²: its tile's part of the union (Green's
     theorem over the boundary pieces in the tile, about the tile's corner) less
-    ``tolerance``/2 × that part's length."""
+    :data:`~printability.motion.beadunion.SIDE` × ``tolerance`` × that part's length."""
     n = int(tiling.bounds[batch + 1] - tiling.bounds[batch])
     if len(u.ex0) == 0:
         return [0.0] * n
@@ -194,7 +195,7 @@ def _tile_areas(u, tiling, batch: int, tolerance: float) -> list[float]:
     if not ok:
         raise RuntimeError("a boundary piece of the bead union lies outside every tile")
     area = np.abs(0.5 * twice)
-    return np.maximum(0.0, area - tolerance / 2 * perimeter).tolist()
+    return np.maximum(0.0, area - SIDE * tolerance * perimeter).tolist()
 
 
 @numba.njit(cache=True, nogil=True)
@@ -223,7 +224,7 @@ def _tile_sums(ex0, ey0, ex1, ey1, px, py, cols, n):  # pragma: no cover
 def _union_edges(r: float, tolerance: float) -> float:
     """Edges per half turn of the widest bead's polygon in the bead union (inf: the
     tolerance is too small for it)."""
-    rho, rmax = r + tolerance / 2, r * INNER + tolerance
+    rho, rmax = r + SIDE * tolerance, r * INNER + tolerance
     if not (tolerance > 0 and rho < rmax):
         return math.inf
     return math.ceil(math.pi / (2 * math.acos(rho / rmax)))

@@ -281,13 +281,14 @@ def _exact_widths(nozzle: Nozzle, w: np.ndarray, b: np.ndarray, step: float) -> 
     The table (:func:`width_table`, ``step`` apart) misses a width by up to
     ``step/2`` × the slope: for the ellipse 0.8 × 0.3 and a 0.45 mm plan its 27.0°
     lays 0.45096 mm, which leaves no room in a target that is just the planned bead
-    grown by τ/2 (τ = 1 µm): every such move was refused there and laid at a
-    narrower grid orientation instead. Here the width is bisected between ``b`` and
-    the neighbouring entry on the other side of ``w``, keeping the end that is not
-    wider (:meth:`~printability.nozzle.Nozzle.bead_widths`). Where neither
-    neighbour lies across ``w`` (a width beyond the nozzle's range, an extremum) the
-    pick stays. Cost: O(len(w)) per step of the bisection, about 50 steps (until every
-    bracket is down to adjacent floats).
+    grown by a fraction of τ (τ = 1 µm; :data:`~printability.motion.beadunion.SIDE`):
+    every such move was refused there and laid at a narrower grid orientation instead.
+    Here the width is bisected between ``b`` and the neighbouring entry on the other
+    side of ``w``, keeping the end that is not wider
+    (:meth:`~printability.nozzle.Nozzle.bead_widths`). Where neither neighbour lies
+    across ``w`` (a width beyond the nozzle's range, an extremum) the pick stays.
+    Cost: O(len(w)) per step of the bisection, about 50 steps (until every bracket is
+    down to adjacent floats).
     """
     b = np.asarray(b, dtype=float)
     out = b.copy()

@@ -2,7 +2,7 @@
 
 Oracles: GEOS's union of the very same convex polygons (boundary, area,
 point location), and GEOS's reconstruction of G (quad_segs 32) for the
-promise G ⊕ τ/2 ⊆ G' ⊆ G₃₂ ⊕ τ, on real slicer layers and on random beads.
+promise G ⊕ sτ ⊆ G' ⊆ G₃₂ ⊕ τ (s = SIDE), on real slicer layers and on random beads.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from gcode import parse_gcode
 from printability.errors import InputError
-from printability.motion.beadunion import bead_union, union_contains_xy, union_covers
+from printability.motion.beadunion import SIDE, bead_union, union_contains_xy, union_covers
 from printability.settings import Settings
 from printability.sources.gcode import layer_beads
 
@@ -45,10 +45,10 @@ def _check_against_geos(p0, p1, r, tau, rng):
     x0, y0, x1, y1 = ref.bounds
     px, py = rng.uniform(x0, x1, 4000), rng.uniform(y0, y1, 4000)
     np.testing.assert_array_equal(union_contains_xy(u, px, py), shapely.intersects_xy(ref, px, py))
-    # between the beads grown by τ/2 and the 32-segment beads grown by τ
+    # between the beads grown by sτ and the 32-segment beads grown by τ
     lines = shapely.linestrings(np.stack([p0, p1], axis=1))
     g32 = shapely.union_all(shapely.buffer(lines, r, quad_segs=32))
-    g_half = shapely.union_all(shapely.buffer(lines, r + tau / 2 * (1 - 1e-6), quad_segs=64))
+    g_half = shapely.union_all(shapely.buffer(lines, r + SIDE * tau * (1 - 1e-6), quad_segs=64))
     assert shapely.difference(ref, g32.buffer(tau, quad_segs=32)).area < 1e-12
     assert shapely.difference(g_half, ref).area < 1e-12
     return u
@@ -93,7 +93,7 @@ def test_random_beads_match_geos(seed, n, tau):
 def test_beads_that_just_touch_leave_no_edge_between_them():
     """Opposite edges lying on each other are inside the union: neither copy is kept."""
     tau = 2.0**-7
-    rho = 0.25 + tau / 2  # the polygons' straight sides: exactly rho from the path
+    rho = 0.25 + SIDE * tau  # the polygons' straight sides: exactly rho from the path
     p0 = np.array([[0.0, 0.0], [1.0, 2 * rho]])
     p1 = np.array([[4.0, 0.0], [5.0, 2 * rho]])
     u = _check_against_geos(p0, p1, np.full(2, 0.25), tau, np.random.default_rng(2))
@@ -113,7 +113,7 @@ def test_a_move_printed_twice_leaves_one_boundary():
 
 
 def test_a_matched_footprint_clears_the_sides():
-    """A bead's own width fits with τ/2 to spare; τ more does not."""
+    """A bead's own width fits with sτ to spare; τ more does not."""
     u = bead_union(np.array([[0.0, 0.0]]), np.array([[10.0, 0.0]]), np.array([0.225]), grow=TAU)
     inside = shapely.box(1.0, -0.225, 9.0, 0.225)
     outside = shapely.box(1.0, -0.225 - TAU, 9.0, 0.225)
@@ -170,7 +170,7 @@ def _random_polygons(rng, n, *, lengths, radii, tau):
     ang = rng.uniform(0, 2 * math.pi, n)
     bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
     r = rng.uniform(*radii, n)
-    rho, rmax = r + tau / 2, r * INNER + tau
+    rho, rmax = r + SIDE * tau, r * INNER + tau
     off, ux, uy, h, *_ = _polygons(ax, ay, bx, by, rho, rmax)
     return ax, ay, bx, by, rho, off, ux, uy, h, _corner_cosines(off)
 

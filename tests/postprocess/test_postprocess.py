@@ -16,6 +16,7 @@ from pp_helpers import geos_targets, laid_widths, lines_not_kept
 from gcode import NON_PART_CATEGORIES, parse_gcode
 from printability.errors import FileFormatError, InputError
 from printability.mmc import compute_mmc
+from printability.motion.beadunion import SIDE
 from printability.motion.check import check_deposition, extrusion_chords
 from printability.nozzle import parse_nozzle
 from printability.postprocess import (
@@ -311,18 +312,18 @@ def test_threads_change_nothing(shared_data, monkeypatch):
 
 @pytest.mark.parametrize("key", ["prusa", "benchy"])
 def test_reported_target_area_is_that_of_g(processed, key):
-    """The bead union's area less τ/2 × its perimeter is G's area, within that much."""
+    """The bead union's area less sτ × its perimeter is G's area, within that much."""
     data, _, res = processed[key]
     targets = geos_targets(parse_gcode(data))
     assert res.layers
     for r in res.layers:
         g = targets[r.index]
         tau = 1e-3
-        assert abs(r.target_area - g.area) <= tau / 2 * g.boundary.length * 1.01, r.index
+        assert abs(r.target_area - g.area) <= SIDE * tau * g.boundary.length * 1.01, r.index
 
 
 def test_a_tolerance_too_small_for_the_bead_union_uses_geos(prusa_short):
-    """Below ~0.15 µm no polygon fits between G ⊕ τ/2 and G₃₂ ⊕ τ: the GEOS path (union,
+    """Below ~0.1 µm no polygon fits between G ⊕ sτ and G₃₂ ⊕ τ: the GEOS path (union,
     then buffer) plans instead, and plans the same moves where τ does not matter."""
     data = prusa_short.read_bytes()
     _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
