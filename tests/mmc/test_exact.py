@@ -340,3 +340,29 @@ def test_japan_coastline_circle_and_ellipse():
     ttr = exact(g, "ellipse:major=1.6,minor=0.6", "ttr", angle_step=10)
     assert ttr.as_built.difference(g).area == 0.0
     assert ttr.lost_area_bounds[0] <= ttr.lost_area
+
+
+def test_sliver_holes_are_filled_and_real_holes_kept():
+    """A hole no disk of the given radius fits in is filled; a real one stays."""
+    from printability.mmc._disk_offsets import fill_thin_holes
+
+    outer = [(0, 0), (10, 0), (10, 10), (0, 10)]
+    sliver = [(2, 5), (8, 5 + 1e-9), (8, 5)]  # 6 mm long, a nanometre wide
+    real = [(2, 2), (3, 2), (3, 3), (2, 3)]
+    g = shapely.Polygon(outer, [sliver, real])
+    out = fill_thin_holes(g, 1e-6)
+    assert [len(q.interiors) for q in out.geoms] == [1]
+    assert out.area == pytest.approx(100 - 1)
+    assert fill_thin_holes(g, 0.0).area == pytest.approx(g.area)  # nothing is that thin
+    assert fill_thin_holes(box(0, 0, 1, 1), 1e-6).equals(box(0, 0, 1, 1))
+
+
+def test_as_built_of_a_turned_l_has_no_sliver_hole():
+    """P ∪ its band along a nearly axis-parallel edge left a 1.4 nm wide hole in S."""
+    from shapes import l_shape
+
+    g = shapely.affinity.rotate(l_shape(), 1e-5, origin=(0, 0))
+    res = compute_mmc(g, "circle:d=1.48046875", "xy", engine="exact")
+    assert [len(q.interiors) for q in res.as_built.geoms] == [0]
+    again = compute_mmc(res.as_built, "circle:d=1.48046875", "xy", engine="exact")
+    assert again.lost_area_bounds[0] <= res.lost_area_bounds[1] - res.lost_area_bounds[0]
