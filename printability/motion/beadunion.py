@@ -91,9 +91,9 @@ SIDE = 0.35
 """The polygons' straight sides stand s·τ out of their bead (see the module docs). Measured
 on eight sliced files with the ellipse 0.8 × 0.3 (τ = 0.95 µm): 0.35 instead of an even
 0.5 has 23 corners per half turn instead of 27 and cuts the post-processor's CPU by 4-6 %
-on the cube, 10-17 % on Tolerance and Benchy; the dropped length moves by -0.3 to +1 % on
-seven files and by +6 % on Cura's sample (0.03 % of its extruded length); 0.25 and 0.15
-gain little more and drop more there."""
+on the cube, 10-17 % on Tolerance and Benchy; the dropped length moves by -0.3 to +0.4 % on
+four of five files and by +6 % on Cura's sample (0.03 % of its extruded length); 0.25 and
+0.15 gain little more and drop more there."""
 
 _EPS = 1e-9
 _PARALLEL_MIN = 1000
