@@ -97,7 +97,6 @@ __all__ = [
     "chord_factor",
     "dilate_disk",
     "erode_disk",
-    "fill_thin_holes",
 ]
 
 # GEOS behaviour the certificate relies on (see the module docstring).
@@ -133,24 +132,38 @@ def _disk_cover(quad_segs: int) -> float:
 # --------------------------------------------------------------------- disk primitives
 
 
-def _as_multi(geom: BaseGeometry) -> MultiPolygon:
-    """The polygons of ``geom`` as a MultiPolygon, without zero-area holes.
+def _as_multi(geom: BaseGeometry, *, thin: float = 0.0) -> MultiPolygon:
+    """The polygons of ``geom`` as a MultiPolygon, without zero-area holes, nor, for
+    ``thin`` > 0, holes that hold no disk of radius ``thin``.
 
     Unions of touching pieces can leave holes of no area (slits); their points
     are limits of the region's points, so closing them changes no area and no
     containment proved here (every such set is closed), while an eroded slit
-    would kill every position within r of it.
+    would kill every position within r of it. Where rounding parts the two copies
+    of the shared edge, the slit has an area after all: 5.5 mm × 1.4 nm in P ∪ its
+    band for an L turned by 1e-5°, whose erosion by the same disk then lost 4.75 mm².
+    Every point of a hole that holds no disk of radius ``thin`` is within ``thin``
+    of the region: a caller whose region may grow by that much passes it (one
+    negative buffer per hole of area at most ``thin`` × its perimeter; a hole of more
+    area is kept, which only ever makes the region smaller).
     """
     polys = polygons_of(geom)
     out = []
     for p in polys:
         if p.interiors:
             tiny = 1e-12 * max(p.area, 1e-300)
-            holes = [h for h in p.interiors if Polygon(h).area > tiny]
+            holes = [h for h in p.interiors if not _slit(Polygon(h), tiny, thin)]
             if len(holes) < len(p.interiors):
                 p = Polygon(p.exterior, holes)
         out.append(p)
     return MultiPolygon(out) if out else _EMPTY
+
+
+def _slit(hole: Polygon, tiny: float, thin: float) -> bool:
+    if hole.area <= tiny:
+        return True
+    return (thin > 0 and hole.area <= thin * hole.length
+            and shapely.buffer(hole, -thin).is_empty)
 
 
 def _split_lines(
@@ -599,32 +612,6 @@ def erode_disk(g: BaseGeometry, r: float, *, quad_segs: int, outer: bool = False
     return _as_multi(shapely.difference(g, _two_sided_band(g, r, quad_segs)))
 
 
-def fill_thin_holes(g: BaseGeometry, width: float) -> MultiPolygon:
-    """``g`` with every hole that holds no disk of radius ``width`` filled in.
-
-    A union of pieces that meet along an edge (P and its band in a dilation) may
-    leave, where rounding parts the two copies of the edge, a sliver hole of no
-    width: 5.5 mm long and 1.4 nm wide in an L turned by 1e-5°. It has no area,
-    but the next operation takes its ring for boundary: an erosion of that S by
-    the same disk loses a strip as wide as the disk along it. Every point of such
-    a hole is within ``width`` of the union's closure. Cost: one negative buffer
-    per hole whose area is at most ``width`` × its perimeter; a hole of more area
-    is kept without it (keeping a hole only ever makes the region smaller).
-    """
-    polys = polygons_of(g)
-    if not any(q.interiors for q in polys):
-        return _as_multi(g)
-    out = []
-    for q in polys:
-        keep = []
-        for ring in q.interiors:
-            h = Polygon(ring)
-            if h.area > width * h.length or not shapely.buffer(h, -width).is_empty:
-                keep.append(ring)
-        out.append(q if len(keep) == len(q.interiors) else Polygon(q.exterior, keep))
-    return MultiPolygon(out)
-
-
 def dilate_disk(p: BaseGeometry, r: float, *, quad_segs: int, outer: bool = False) -> MultiPolygon:
     """P ⊕ D_r, as an inner (default) or outer polygonal approximation.
 
@@ -633,8 +620,8 @@ def dilate_disk(p: BaseGeometry, r: float, *, quad_segs: int, outer: bool = Fals
     Outer: the complement of a certified erosion of P's complement (within a
     frame): (Pᶜ ⊖ D_r)ᶜ = P ⊕ D_r, so a subset of the erosion gives a superset.
     Both are exact along straight offsets; the arcs differ by ≤ r·(1/κ − 1).
-    The inner one's sliver holes (:func:`fill_thin_holes`, narrower than 10⁻⁶·r,
-    inside the band's margin of 10⁻⁵·r) are filled.
+    The inner one's slits (:func:`_as_multi`: holes narrower than 10⁻⁶·r, inside
+    the band's margin of 10⁻⁵·r) are closed.
     """
     if r <= 0 or p.is_empty:
         return _as_multi(p)
@@ -646,4 +633,4 @@ def dilate_disk(p: BaseGeometry, r: float, *, quad_segs: int, outer: bool = Fals
         grown = 1.01 * r
         return _as_multi(shapely.difference(
             shapely.box(minx - grown, miny - grown, maxx + grown, maxy + grown), eroded))
-    return fill_thin_holes(shapely.union(p, _side_band(p, r, quad_segs, -1)), 1e-6 * r)
+    return _as_multi(shapely.union(p, _side_band(p, r, quad_segs, -1)), thin=1e-6 * r)

@@ -344,17 +344,17 @@ def test_japan_coastline_circle_and_ellipse():
 
 def test_sliver_holes_are_filled_and_real_holes_kept():
     """A hole no disk of the given radius fits in is filled; a real one stays."""
-    from printability.mmc._disk_offsets import fill_thin_holes
+    from printability.mmc._disk_offsets import _as_multi
 
     outer = [(0, 0), (10, 0), (10, 10), (0, 10)]
     sliver = [(2, 5), (8, 5 + 1e-9), (8, 5)]  # 6 mm long, a nanometre wide
     real = [(2, 2), (3, 2), (3, 3), (2, 3)]
     g = shapely.Polygon(outer, [sliver, real])
-    out = fill_thin_holes(g, 1e-6)
+    out = _as_multi(g, thin=1e-6)
     assert [len(q.interiors) for q in out.geoms] == [1]
     assert out.area == pytest.approx(100 - 1)
-    assert fill_thin_holes(g, 0.0).area == pytest.approx(g.area)  # nothing is that thin
-    assert fill_thin_holes(box(0, 0, 1, 1), 1e-6).equals(box(0, 0, 1, 1))
+    assert _as_multi(g, thin=0.0).area == pytest.approx(g.area)  # nothing is that thin
+    assert _as_multi(box(0, 0, 1, 1), thin=1e-6).equals(box(0, 0, 1, 1))
 
 
 def test_as_built_of_a_turned_l_has_no_sliver_hole():

@@ -68,7 +68,7 @@ def test_opening_is_idempotent_for_polygon_nozzles(g, w, h, a):
 
 @PROPS
 @given(g=regions(), d=st.floats(0.3, 1.5))
-# found by a local run: S had a sliver hole along P's edge (see fill_thin_holes), and
+# found by a local run: S had a sliver hole along P's edge (see _disk_offsets._as_multi), and
 # opening S again lost 4.75 mm² along it
 @example(g=shapely.affinity.rotate(l_shape(), 1e-5, origin=(0, 0)), d=1.48046875)
 def test_reopening_by_a_disk_loses_no_more_than_the_certificate(g, d):
