@@ -111,13 +111,13 @@ def _edges_state(cu, su, h, bx0, by0, bx1, by1, start, items, x0, y0, cell, nx, 
         for ix in range(ix0, ix1 + 1):
             c = iy * nx + ix
             for q in range(start[c], start[c + 1]):
-                if packed[q, 5] < bx0 or packed[q, 4] > bx1 or packed[q, 7] < by0 \
-                        or packed[q, 6] > by1:
-                    continue
                 ax = packed[q, 0]
                 ay = packed[q, 1]
                 bx = packed[q, 2]
                 by = packed[q, 3]
+                if max(ax, bx) < bx0 or min(ax, bx) > bx1 or max(ay, by) < by0 \
+                        or min(ay, by) > by1:
+                    continue
                 if _clip(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
                     continue
                 t = _clip(ax, ay, bx, by, cu, su, h, -eps, order)
