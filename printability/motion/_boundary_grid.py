@@ -5,7 +5,7 @@ The footprint tests (:mod:`printability.motion._covers`,
 :mod:`printability.motion._point_location` find the edges of ∂G near a footprint
 or a point through this grid instead of scanning ∂G: per cell, the edges whose
 bounding box overlaps it (CSR), ~1 mm cells, with each entry's edge also packed
-in one row of 8 for the scans. The grids of the last few targets are cached.
+in one row of 4 for the scans. The grids of the last few targets are cached.
 Cells are found with :func:`printability.motion._kernels.cell_of`, the binning
 shared with :mod:`printability.motion.beadunion`.
 
