@@ -184,32 +184,34 @@ def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
 
 def _tile_areas(u, tiling, batch: int, tolerance: float) -> list[float]:
     """The area of G of each layer of a batch, mm²: its tile's part of the union (Green's
-    theorem over the boundary pieces in the tile, about the tile's corner) less
-    :data:`~printability.motion.beadunion.SIDE` × ``tolerance`` × that part's length."""
+    theorem over the boundary pieces in the tile, about the tile's corner) less how far
+    each piece stands out of G (:data:`~printability.motion.beadunion.SIDE` × ``tolerance``
+    and, on a polygon's side, its ``beyond``) × its length."""
     n = int(tiling.bounds[batch + 1] - tiling.bounds[batch])
     if len(u.ex0) == 0:
         return [0.0] * n
     px, py = (float(v) for v in tiling.pitch[batch])
-    twice, perimeter, ok = _tile_sums(u.ex0, u.ey0, u.ex1, u.ey1, px, py,
-                                      int(tiling.cols[batch]), n)
+    twice, perimeter, out, ok = _tile_sums(u.ex0, u.ey0, u.ex1, u.ey1, u.beyond, px, py,
+                                           int(tiling.cols[batch]), n)
     if not ok:
         raise RuntimeError("a boundary piece of the bead union lies outside every tile")
     area = np.abs(0.5 * twice)
-    return np.maximum(0.0, area - SIDE * tolerance * perimeter).tolist()
+    return np.maximum(0.0, area - SIDE * tolerance * perimeter - out).tolist()
 
 
 @numba.njit(cache=True, nogil=True)
-def _tile_sums(ex0, ey0, ex1, ey1, px, py, cols, n):  # pragma: no cover
+def _tile_sums(ex0, ey0, ex1, ey1, beyond, px, py, cols, n):  # pragma: no cover
     """Per tile (:func:`~printability.motion.tiles.tile_index` of each piece's midpoint):
-    twice the signed area of its pieces about the tile's corner and their length, summed in
-    the pieces' order (the arithmetic of ``np.bincount`` over the numpy expressions, in one
-    pass); and whether every piece lies in a tile."""
+    twice the signed area of its pieces about the tile's corner, their length and the sum
+    of their lengths × ``beyond``, summed in the pieces' order (one pass); and whether
+    every piece lies in a tile."""
     twice = np.zeros(n)
     length = np.zeros(n)
+    out = np.zeros(n)
     for e in range(len(ex0)):
         j = tile_index((ex0[e] + ex1[e]) / 2, (ey0[e] + ey1[e]) / 2, px, py, cols, n)
         if j < 0:
-            return twice, length, False
+            return twice, length, out, False
         ox = (j % cols) * px
         oy = (j // cols) * py
         x0 = ex0[e] - ox
@@ -217,8 +219,10 @@ def _tile_sums(ex0, ey0, ex1, ey1, px, py, cols, n):  # pragma: no cover
         x1 = ex1[e] - ox
         y1 = ey1[e] - oy
         twice[j] += x0 * y1 - x1 * y0
-        length[j] += math.hypot(x1 - x0, y1 - y0)
-    return twice, length, True
+        piece = math.hypot(x1 - x0, y1 - y0)
+        length[j] += piece
+        out[j] += piece * beyond[e]
+    return twice, length, out, True
 
 
 def _union_edges(r: float, tolerance: float) -> float:

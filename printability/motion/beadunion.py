@@ -15,10 +15,15 @@ Each bead of radius r along the segment [a, b] becomes the convex polygon
     C = [a, b] ⊕ Q,
 
 with Q a regular 2k-gon circumscribed about the circle of radius
-ρ = r + sτ (s = :data:`SIDE`), turned so that two of its edges are parallel to the
-segment (the polygon's straight sides are then exactly ρ from the path). k is the
-smallest count whose corners stay within r·c + τ of the segment, where c is
-the inner factor of the GEOS reconstruction (:data:`INNER`, quad_segs 32).
+ρ = r + sτ (s = :data:`SIDE`), its corners at the angles (m + ½)·π/k, m = 0 … 2k − 1,
+the same for every bead: the caps of two chords that meet at a point of a path
+(equal widths) are then the same corners, and their union's boundary there is one
+arc of Q, not the two polygons' corners poking through each other's edges in turn (on
+the calibration cube 97 000 boundary pieces, 69 000 of them under 10 µm, against
+40 000, 4 000; every footprint test reads fewer). C's straight sides, parallel to
+the segment through Q's extreme corners, stand between ρ and ρ / cos(π/2k) from the
+path. k is the smallest count whose corners stay within r·c + τ of the segment,
+where c is the inner factor of the GEOS reconstruction (:data:`INNER`, quad_segs 32).
 Hence, with G₃₂ the polygonal G the rest of the project builds,
 
     capsule(r + sτ) ⊆ C ⊆ capsule(r·c + τ) ⊆ G₃₂ ⊕ τ,
@@ -26,9 +31,14 @@ Hence, with G₃₂ the polygonal G the rest of the project builds,
 and the union G' of the C's lies between G ⊕ sτ and G₃₂ ⊕ τ: every
 footprint accepted against G' lies inside the target within the tolerance,
 and a footprint laying exactly the planned width (half-width r) clears the
-sides by sτ. The rest of the tolerance, (1 − s)τ less the reference polygon's
+sides by at least sτ. The rest of the tolerance, (1 − s)τ less the reference polygon's
 own shortfall r(1 − c), is the room the corners have: the smaller s, the
 fewer corners (k) and the faster the boundary and every footprint test on it.
+
+Polygon i has 2k + 2 half-planes, clockwise from its left side (normal l, the
+segment's direction turned by +90°): the left side, the k edges of the cap at b (the
+normals of Q from the one just clockwise of l, ``phase`` radians from it, in steps of
+π/k), the right side, the k edges of the cap at a.
 
 The boundary
 ------------
@@ -49,9 +59,9 @@ no kept piece leaves G' by at most about 2ε, far inside the tolerance. Points a
 by the polygons themselves (:func:`union_contains_xy`), never by counting
 boundary crossings, so those gaps cannot mislead it.
 
-Each clip evaluates only the half-planes of C_j that face the edge's ends
-(:func:`_window`, :func:`_clip_windows`): a plane that holds both ends by a margin cannot move the
-interval, so the result is the full loop's to the bit, at about a tenth of the
+Each clip evaluates only C_j's two sides and the cap planes that face the edge's ends
+(:func:`_window`, :func:`_clip_windows`): a plane that holds both ends by a margin cannot
+move the interval, so the result is the full loop's to the bit, at about a tenth of the
 planes. An edge starts where the last one ended, so :func:`_boundary` keeps each
 neighbour's window of that corner (a third of the windows are found so), and the two
 ends' windows are evaluated as one arc where they overlap (:func:`_clip_windows`).
@@ -117,11 +127,17 @@ class BeadUnion:
         Half-planes and corners of every polygon.
     box : ndarray
         (n, 4) bounding box of each polygon.
+    k, phase : ndarray
+        Each polygon's edges per half turn and the angle (radians, clockwise) from its
+        left side's normal to the next plane's (the module docs).
     grid : tuple
         ``(start, items, x0, y0, cell, nx, ny)``: the polygons whose box meets
         cell ``iy·nx + ix``.
     ex0, ey0, ex1, ey1 : ndarray
         Edges of ∂G'.
+    beyond : ndarray
+        How far each edge's line stands beyond ρ from its bead's path, mm (0 on the
+        caps; on the sides, Q's extreme corner's excess, below ρ(1/cos(π/2k) − 1)).
     area : float
         Area of G' (mm²), from the boundary by Green's theorem (the pieces'
         gaps at shallow crossings leave it within about 1e-6 of GEOS's area of
@@ -142,11 +158,14 @@ class BeadUnion:
     vx: np.ndarray
     vy: np.ndarray
     box: np.ndarray
+    k: np.ndarray
+    phase: np.ndarray
     grid: tuple
     ex0: np.ndarray
     ey0: np.ndarray
     ex1: np.ndarray
     ey1: np.ndarray
+    beyond: np.ndarray
     area: float
     perimeter: float
 
@@ -207,22 +226,23 @@ def bead_union(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, *, grow: floa
         z = np.zeros(0)
         zi = np.zeros(1, np.int64)
         return BeadUnion(z, z, z, z, z, zi, z, z, z, z, z, np.zeros((0, 4)),
+                         np.zeros(0, np.int64), z,
                          (np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0, 1, 1),
-                         z, z, z, z, 0.0, 0.0)
-    off, ux, uy, h, vx, vy, box = _polygons(ax, ay, bx, by, rho, rmax)
+                         z, z, z, z, z, 0.0, 0.0)
+    off, ux, uy, h, vx, vy, box, k, phase = _polygons(ax, ay, bx, by, rho, rmax)
     grid = _grid(box)
     parts: dict[int, np.ndarray] = {}
 
     def run(part: slice) -> None:
-        parts[part.start] = _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, *grid,
-                                      _EPS, part.start, part.stop)
+        parts[part.start] = _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, k,
+                                      phase, *grid, _EPS, part.start, part.stop)
 
     shared_out(run, np.ones(len(ax)), workers, min_items=_PARALLEL_MIN)
-    edges = parts[0] if len(parts) == 1 else np.concatenate([parts[k] for k in sorted(parts)])
+    edges = parts[0] if len(parts) == 1 else np.concatenate([parts[p] for p in sorted(parts)])
     area = _green(edges, grid[2], grid[3])
-    ex0, ey0, ex1, ey1 = (np.ascontiguousarray(edges[:, c]) for c in range(4))
-    return BeadUnion(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, grid,
-                     ex0, ey0, ex1, ey1, abs(float(area)),
+    ex0, ey0, ex1, ey1, beyond = (np.ascontiguousarray(edges[:, c]) for c in range(5))
+    return BeadUnion(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, k, phase, grid,
+                     ex0, ey0, ex1, ey1, beyond, abs(float(area)),
                      float(np.hypot(ex1 - ex0, ey1 - ey0).sum()))
 
 
@@ -282,7 +302,8 @@ def _whole(u: BeadUnion):
 
 @numba.njit(cache=True, nogil=True)
 def _polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
-    """Half-planes, corners and boxes of every bead polygon (see the module docs)."""
+    """Half-planes, corners and boxes of every bead polygon, its edges per half turn and
+    the phase of its cap planes (see the module docs)."""
     n = len(ax)
     k = np.empty(n, np.int64)
     off = np.zeros(n + 1, np.int64)
@@ -291,8 +312,8 @@ def _polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
         # the fewest edges per half turn whose corners, at rho / cos(pi / 2k), stay in rmax
         k[i] = max(2, math.ceil(math.pi / (2.0 * math.acos(rho[i] / rmax[i]))))
         kmax = max(kmax, k[i])
-        off[i + 1] = off[i] + 2 * k[i]
-    # cos/sin of j·π/k (edge normals) and (j + ½)·π/k (corners), once per k in use
+        off[i + 1] = off[i] + 2 * k[i] + 2
+    # cos/sin of m·π/k (edge normals) and (m + ½)·π/k (corners), once per k in use
     used = np.zeros(kmax + 1, np.bool_)
     for i in range(n):
         used[k[i]] = True
@@ -302,43 +323,75 @@ def _polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
     vs = np.zeros((kmax + 1, 2 * kmax))
     for kk in range(2, kmax + 1):
         if used[kk]:
-            for j in range(2 * kk):
-                nc[kk, j] = math.cos(j * math.pi / kk)
-                ns[kk, j] = math.sin(j * math.pi / kk)
-                vc[kk, j] = math.cos((j + 0.5) * math.pi / kk)
-                vs[kk, j] = math.sin((j + 0.5) * math.pi / kk)
-    m = off[n]
-    ux = np.empty(m)
-    uy = np.empty(m)
-    h = np.empty(m)
-    vx = np.empty(m)
-    vy = np.empty(m)
+            for m in range(2 * kk):
+                nc[kk, m] = math.cos(m * math.pi / kk)
+                ns[kk, m] = math.sin(m * math.pi / kk)
+                vc[kk, m] = math.cos((m + 0.5) * math.pi / kk)
+                vs[kk, m] = math.sin((m + 0.5) * math.pi / kk)
+    total = off[n]
+    ux = np.empty(total)
+    uy = np.empty(total)
+    h = np.empty(total)
+    vx = np.empty(total)
+    vy = np.empty(total)
     box = np.empty((n, 4))
+    phase = np.empty(n)
     for i in range(n):
         dx = bx[i] - ax[i]
         dy = by[i] - ay[i]
         length = math.hypot(dx, dy)
         tx, ty = (dx / length, dy / length) if length > 0 else (1.0, 0.0)
-        lx = -ty  # left normal: edge 0 is the left side, edges 1..k-1 the cap at b
+        lx = -ty  # left normal
         ly = tx
         ki = k[i]
+        two = 2 * ki
+        step = math.pi / ki
         big = rho[i] / vc[ki, 0]
-        for j in range(2 * ki):
-            u0 = nc[ki, j] * lx + ns[ki, j] * tx
-            u1 = nc[ki, j] * ly + ns[ki, j] * ty
-            q = off[i] + j
-            ux[q] = u0
-            uy[q] = u1
-            h[q] = max(u0 * ax[i] + u1 * ay[i], u0 * bx[i] + u1 * by[i]) + rho[i]
-            cx = bx[i] if j < ki else ax[i]
-            cy = by[i] if j < ki else ay[i]
-            vx[q] = cx + big * (vc[ki, j] * lx + vs[ki, j] * tx)
-            vy[q] = cy + big * (vc[ki, j] * ly + vs[ki, j] * ty)
+        # the corner of Q nearest l: corner ml, at (ml + ½)·step, lies within half a step of
+        # l's angle; the cap at b runs clockwise from it to the opposite corner ml - k
+        psi = math.atan2(ly, lx)
+        if psi < 0.0:
+            psi += 2.0 * math.pi
+        ml = min(max(math.floor(psi / step), 0), two - 1)
+        phase[i] = psi - ml * step
+        q = off[i]
+        for side in range(2):
+            sgn = 1.0 if side == 0 else -1.0
+            su0 = sgn * lx
+            su1 = sgn * ly
+            cm = ml if side == 0 else (ml + ki) % two  # Q's corner extreme along ±l
+            # the side touches the extreme corner (its neighbours too, should rounding tie
+            # them with it)
+            hq = -1e300
+            for dm in range(-1, 2):
+                mm = (cm + dm) % two
+                hq = max(hq, big * (su0 * vc[ki, mm] + su1 * vs[ki, mm]))
+            j = q + side * (ki + 1)
+            ux[j] = su0
+            uy[j] = su1
+            h[j] = hq + max(su0 * ax[i] + su1 * ay[i], su0 * bx[i] + su1 * by[i])
+            # corner j ends edge j: the side ends at the extreme corner, on the cap it
+            # runs to (b after the left side, a after the right one)
+            cx = bx[i] if side == 0 else ax[i]
+            cy = by[i] if side == 0 else ay[i]
+            vx[j] = cx + big * vc[ki, cm]
+            vy[j] = cy + big * vs[ki, cm]
+            for r in range(ki):
+                m = (cm - r) % two  # the normal between corners m and m - 1
+                e = (cm - r - 1) % two
+                j = q + side * (ki + 1) + 1 + r
+                u0 = nc[ki, m]
+                u1 = ns[ki, m]
+                ux[j] = u0
+                uy[j] = u1
+                h[j] = max(u0 * ax[i] + u1 * ay[i], u0 * bx[i] + u1 * by[i]) + rho[i]
+                vx[j] = cx + big * vc[ki, e]
+                vy[j] = cy + big * vs[ki, e]
         box[i, 0] = min(ax[i], bx[i]) - big
         box[i, 1] = min(ay[i], by[i]) - big
         box[i, 2] = max(ax[i], bx[i]) + big
         box[i, 3] = max(ay[i], by[i]) + big
-    return off, ux, uy, h, vx, vy, box
+    return off, ux, uy, h, vx, vy, box, k, phase
 
 
 def _grid(box: np.ndarray) -> tuple:
@@ -384,17 +437,19 @@ edge: far above the rounding of the offsets (about 1e-13 mm), far below the bead
 
 
 @numba.njit(cache=True, nogil=True)
-def _window(x, y, ax, ay, bx, by, lx, ly, rho, k, eps, vck):  # pragma: no cover
-    """The half-planes of C_j (segment [a, b], left normal ``l``, 2k sides, side offset
-    ``rho``) that may not hold the point x by :data:`_SAFE`: ``(j*, w)``, the planes
-    ``j* - w … j* + w`` (mod 2k); ``w = -1`` none, ``w >= k // 2`` all (no window saves).
+def _window(x, y, ax, ay, bx, by, lx, ly, rho, k, phase, eps, vck):  # pragma: no cover
+    """The cap planes of C_j (segment [a, b], left normal ``l``, k edges per half turn, cap
+    planes ``phase`` clockwise of l, side offset ``rho``) that may not hold the point x by
+    :data:`_SAFE`: ``(r*, w)``, the cap planes ``r* - w … r* + w`` (mod 2k, counted
+    clockwise from the one just past l: :func:`_cap_plane`); ``w = -1`` none,
+    ``w >= k // 2`` all (no window saves).
 
-    With s the point of [a, b] nearest x and d = x − s, plane l holds
+    With s the point of [a, b] nearest x and d = x − s, every plane l of C_j holds
     ``u_l·s ≤ h_l − ρ``, so ``u_l·x ≤ h_l − ρ + |d| cos Δ_l`` with Δ_l its angle to d:
     when ``|d| cos Δ_l ≤ ρ − ε − _SAFE`` it holds x with room to spare, whatever
-    :func:`_clip`'s margins (at least −ε). Plane j* is the nearest to d's direction, so
-    the plane m steps from it is at least (m − ½)·π/k from d, and ``vck[m - 1]`` =
-    cos((m − ½)·π/k) bounds its cos Δ.
+    :func:`_clip`'s margins (at least −ε). Cap plane r* is the nearest to d's direction, so
+    the one m steps from it is at least (m − ½)·π/k from d, and ``vck[m - 1]`` =
+    cos((m − ½)·π/k) bounds its cos Δ. (The two sides are always clipped.)
     """
     ex, ey = _segment_offset(x, y, ax, ay, bx, by)
     d2 = ex * ex + ey * ey
@@ -407,21 +462,31 @@ def _window(x, y, ax, ay, bx, by, lx, ly, rho, k, eps, vck):  # pragma: no cover
         w += 1
     if w >= k // 2:
         return 0, k
-    # the angle of d from l towards the segment's direction t = (ly, -lx)
+    # the angle of d from l towards the segment's direction t = (ly, -lx) (clockwise)
     phi = math.atan2(ex * ly - ey * lx, ex * lx + ey * ly)
-    return math.floor(phi * k / math.pi + 0.5), w
+    return math.floor((phi - phase) * k / math.pi + 0.5), w
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cap_plane(r, k):  # pragma: no cover
+    """The index in its polygon of cap plane r (mod 2k, clockwise from the one just past the
+    left side): the k planes of the cap at b follow the left side, the cap at a's the right
+    side."""
+    r = r % (2 * k)
+    return 1 + r if r < k else 2 + r
 
 
 @numba.njit(cache=True, nogil=True)
 def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1, j2,
                   w2):  # pragma: no cover
-    """:func:`_clip`'s interval over the half-planes ``a:b`` of C_j in the two ends'
-    windows ``(j, w)`` (:func:`_window`; all of them when either is ``w >= k // 2``).
+    """:func:`_clip`'s interval over the half-planes ``a:b`` of C_j: its two sides and the
+    cap planes in the two ends' windows ``(r, w)`` (:func:`_window`; all of them when
+    either is ``w >= k // 2``).
 
     A plane outside both windows holds both ends strictly, so its Liang–Barsky parameter
     lies beyond [0, 1] on the side it bounds: it moves neither t0 nor t1, and the
     interval (hence the boundary) is the full loop's to the bit. Most edges of a cap face
-    a few planes of a neighbour (about 6 of 54 at τ = 1e-3 mm); the full loop runs where
+    a few planes of a neighbour (about 6 of 48 at τ = 1e-3 mm); the full loop runs where
     the ends are too far out for a window to save (w ≥ k/2).
 
     Any superset of the planes the windows keep gives the same bits (min and max do not
@@ -429,13 +494,17 @@ def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1,
     arc that spans both, each plane once: the two ends of a short edge mostly face the
     same few planes.
     """
-    k = (b - a) // 2
+    k = (b - a - 2) // 2
     if w1 >= k // 2 or w2 >= k // 2:
         return _clip(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny)
     t0 = 0.0
     t1 = 1.0
     dx = qx - px
     dy = qy - py
+    for j in (a, a + k + 1):  # the sides
+        t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
+        if t1 <= t0:
+            return 1.0, 0.0
     if w1 >= 0 and w2 >= 0:
         # window 2 seen from window 1's centre, the shorter way round
         delta = (j2 - j1 + k) % (2 * k) - k
@@ -443,7 +512,7 @@ def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1,
         hi = max(w1, delta + w2)
         if hi - lo <= 2 * (w1 + w2) + 1:
             for m in range(lo, hi + 1):
-                j = a + (j1 + m) % (2 * k)
+                j = a + _cap_plane(j1 + m, k)
                 t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
                 if t1 <= t0:
                     return 1.0, 0.0
@@ -453,7 +522,7 @@ def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1,
         w = w1 if end == 0 else w2
         for mm in range(2 * w + 1):  # the nearest plane first, then ±1, ±2…
             m = (mm + 1) // 2 if mm % 2 else -(mm // 2)
-            j = a + (js + m) % (2 * k)
+            j = a + _cap_plane(js + m, k)
             t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
             if t1 <= t0:
                 return 1.0, 0.0
@@ -461,14 +530,14 @@ def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1,
 
 
 @numba.njit(cache=True, nogil=True)
-def _corner_cosines(off):  # pragma: no cover
+def _corner_cosines(k):  # pragma: no cover
     """cos((w + ½)·π/k) for w < k, per edge count k (per half turn) of the polygons."""
     kmax = 2
-    for i in range(len(off) - 1):
-        kmax = max(kmax, (off[i + 1] - off[i]) // 2)
+    for i in range(len(k)):
+        kmax = max(kmax, k[i])
     vc = np.ones((kmax + 1, kmax))
-    for i in range(len(off) - 1):
-        kk = (off[i + 1] - off[i]) // 2
+    for i in range(len(k)):
+        kk = k[i]
         if vc[kk, 0] == 1.0:
             for w in range(kk):
                 vc[kk, w] = math.cos((w + 0.5) * math.pi / kk)
@@ -476,18 +545,19 @@ def _corner_cosines(off):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0, y0, cell,
-              nx, ny, eps, lo, hi):  # pragma: no cover
+def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, k, phase, start, items, x0, y0,
+              cell, nx, ny, eps, lo, hi):  # pragma: no cover
     """The uncovered pieces of the edges of polygons ``lo … hi - 1`` (the tie rule of the
-    module docs), in order: what each polygon keeps depends on the polygons only."""
+    module docs), in order: what each polygon keeps depends on the polygons only. Rows
+    (x0, y0, x1, y1, how far the piece's line stands beyond ρ from its bead's path)."""
     n = len(ax)
     mark = np.full(n, -1, np.int64)
     near = np.empty(n, np.int64)
     t_lo = np.empty(n + 2)
     t_hi = np.empty(n + 2)
     cap = max(1024, 8 * (hi - lo))
-    out = np.empty((cap, 4))
-    vc = _corner_cosines(off)
+    out = np.empty((cap, 5))
+    vc = _corner_cosines(k)
     # per slot of ``near``: the corner (index into vx, vy) whose window against that
     # neighbour is kept, and the window
     w_at = np.full(n, -1, np.int64)
@@ -531,6 +601,12 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
             py = vy[q0]
             qx = vx[q1]
             qy = vy[q1]
+            # how far the edge's line stands beyond rho from the path: 0 on the caps, the
+            # sides touch Q's extreme corners
+            beyond = 0.0
+            if e == 0 or e == k[i] + 1:
+                beyond = h[q1] - max(ux[q1] * ax[i] + uy[q1] * ay[i],
+                                     ux[q1] * bx[i] + uy[q1] * by[i]) - rho[i]
             lo_x = min(px, qx)
             hi_x = max(px, qx)
             lo_y = min(py, qy)
@@ -540,8 +616,8 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
             my = 0.5 * (py + qy)
             n_iv = 0
             covered = False
-            # the cap at b (edges 1 … k-1) is mostly inside the next chord's polygon
-            ahead = both and 0 < e < d // 2
+            # the cap at b (edges 1 … k) is mostly inside the next chord's polygon
+            ahead = both and 0 < e <= k[i]
             for mm in range(m):
                 sl = 1 - mm if ahead and mm < 2 else mm
                 j = near[sl]
@@ -556,15 +632,15 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
                     break
                 # the ends' windows; an edge's start is the last edge's end, whose
                 # window against this neighbour is kept from its clip
-                kj = (off[j + 1] - off[j]) // 2
+                kj = k[j]
                 if w_at[sl] == q0:
                     j1 = w_j[sl]
                     w1 = w_w[sl]
                 else:
                     j1, w1 = _window(px, py, ax[j], ay[j], bx[j], by[j], ux[off[j]],
-                                     uy[off[j]], rho[j], kj, eps, vc[kj])
+                                     uy[off[j]], rho[j], kj, phase[j], eps, vc[kj])
                 j2, w2 = _window(qx, qy, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]],
-                                 rho[j], kj, eps, vc[kj])
+                                 rho[j], kj, phase[j], eps, vc[kj])
                 w_at[sl] = q1
                 w_j[sl] = j2
                 w_w[sl] = w2
@@ -592,7 +668,7 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
                 if s0 > t:
                     if n_out == cap:
                         cap *= 2
-                        grown = np.empty((cap, 4))
+                        grown = np.empty((cap, 5))
                         grown[:n_out] = out[:n_out]
                         out = grown
                     e1 = min(s0, 1.0)
@@ -604,6 +680,7 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, start, items, x0
                     out[n_out, 1] = y0_
                     out[n_out, 2] = x1_
                     out[n_out, 3] = y1_
+                    out[n_out, 4] = beyond
                     n_out += 1
                 if s1 > t:
                     t = s1

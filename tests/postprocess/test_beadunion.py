@@ -93,7 +93,11 @@ def test_random_beads_match_geos(seed, n, tau):
 def test_beads_that_just_touch_leave_no_edge_between_them():
     """Opposite edges lying on each other are inside the union: neither copy is kept."""
     tau = 2.0**-7
-    rho = 0.25 + SIDE * tau  # the polygons' straight sides: exactly rho from the path
+    # the polygons' straight sides, through Q's extreme corners: between r + sτ and the
+    # corners' radius from the path (the same for both beads, which run the same way)
+    one = bead_union(np.array([[0.0, 0.0]]), np.array([[4.0, 0.0]]), np.array([0.25]), grow=tau)
+    rho = float(one.vy.max())
+    assert 0.25 + SIDE * tau <= rho <= 0.25 + tau
     p0 = np.array([[0.0, 0.0], [1.0, 2 * rho]])
     p1 = np.array([[4.0, 0.0], [5.0, 2 * rho]])
     u = _check_against_geos(p0, p1, np.full(2, 0.25), tau, np.random.default_rng(2))
@@ -162,7 +166,8 @@ def test_the_fused_search_decides_as_geos_on_a_bead_union(nozzle):
 
 def _random_polygons(rng, n, *, lengths, radii, tau):
     """n bead polygons on random segments (lengths drawn from ``lengths``, radii uniform
-    in ``radii``): their ends, side offsets, half-planes and corner cosines."""
+    in ``radii``): their ends, side offsets, half-planes, edges per half turn, phases and
+    corner cosines."""
     from printability.motion.beadunion import INNER, _corner_cosines, _polygons
 
     ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
@@ -171,8 +176,8 @@ def _random_polygons(rng, n, *, lengths, radii, tau):
     bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
     r = rng.uniform(*radii, n)
     rho, rmax = r + SIDE * tau, r * INNER + tau
-    off, ux, uy, h, *_ = _polygons(ax, ay, bx, by, rho, rmax)
-    return ax, ay, bx, by, rho, off, ux, uy, h, _corner_cosines(off)
+    off, ux, uy, h, _, _, _, k, phase = _polygons(ax, ay, bx, by, rho, rmax)
+    return ax, ay, bx, by, rho, off, ux, uy, h, k, phase, _corner_cosines(k)
 
 
 @pytest.mark.parametrize("tau", [TAU, 1e-2, 0.1])
@@ -185,11 +190,11 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
 
     rng = np.random.default_rng(seed)
     n = 40
-    ax, ay, bx, by, rho, off, ux, uy, h, vc = _random_polygons(
+    ax, ay, bx, by, rho, off, ux, uy, h, ks, phase, vc = _random_polygons(
         rng, n, lengths=[0.0, 0.05, 1.0, 4.0], radii=(0.1, 0.6), tau=tau)
     windowed = 0
     for j in range(n):
-        k = (off[j + 1] - off[j]) // 2
+        k = ks[j]
         # ends scattered around the polygon, from deep inside to a few radii out
         t = rng.uniform(-0.5, 1.5, 400)
         s = rng.uniform(0, 3.5 * rho[j], 400) * np.exp(1j * rng.uniform(0, 2 * math.pi, 400))
@@ -201,7 +206,7 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
                     off[j], off[j + 1], _EPS if i % 2 else -_EPS, _EPS,
                     math.cos(i), math.sin(i))
             ends = [_window(x, y, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]], rho[j],
-                            k, _EPS, vc[k]) for x, y in (args[:2], args[2:4])]
+                            k, phase[j], _EPS, vc[k]) for x, y in (args[:2], args[2:4])]
             near = _clip_windows(*args, *ends[0], *ends[1])
             assert near == _clip(*args)  # (an empty interval is (1, 0) in both)
             windowed += max(ends[0][1], ends[1][1]) < k // 2
@@ -218,11 +223,11 @@ def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
 
     rng = np.random.default_rng(seed)
     n = 30
-    ax, ay, bx, by, rho, off, ux, uy, h, vc = _random_polygons(
+    ax, ay, bx, by, rho, off, ux, uy, h, ks, phase, vc = _random_polygons(
         rng, n, lengths=[0.0, 0.3, 2.0], radii=(0.15, 0.5), tau=TAU)
     arcs = 0
     for j in range(n):
-        k = (off[j + 1] - off[j]) // 2
+        k = ks[j]
         for i in range(300):
             t = rng.uniform(-0.3, 1.3)
             s = rng.uniform(0.8, 1.6) * rho[j] * np.exp(1j * rng.uniform(0, 2 * math.pi))
@@ -233,7 +238,7 @@ def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
             args = (px, py, qx, qy, ux, uy, h, off[j], off[j + 1], _EPS if i % 2 else -_EPS,
                     _EPS, math.cos(i), math.sin(i))
             w = [_window(x, y, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]], rho[j], k,
-                         _EPS, vc[k]) for x, y in ((px, py), (qx, qy))]
+                         phase[j], _EPS, vc[k]) for x, y in ((px, py), (qx, qy))]
             full = _clip(*args)
             assert _clip_windows(*args, *w[0], *w[1]) == full
             if max(w[0][1], w[1][1]) < k // 2:

@@ -194,7 +194,10 @@ def test_repeated_layers_share_their_twin_target(union_sizes):
     assert len(per_layer) == 5 and len(union_sizes) == 1
     assert union_sizes[0] == per_layer[0] + per_layer[1]  # layers 3 to 5 add no bead
     assert len({r.target_area for r in res.layers[1:]}) == 1
-    assert res.layers[0].target_area == pytest.approx(res.layers[1].target_area, rel=1e-6)
+    # the first layer mirrors the others' infill: the same area to the estimate's precision
+    # (the bead polygons' corners keep one orientation, so mirror images differ by ~1e-6;
+    # the estimate is within 1e-5 of GEOS's G on sliced parts)
+    assert res.layers[0].target_area == pytest.approx(res.layers[1].target_area, rel=1e-5)
     assert res.rotary_words > 0
     targets = geos_targets(parse_gcode(data))
     reports = check_deposition(extrusion_chords(parse_gcode(new)), targets, parse_nozzle(ELLIPSE),
