@@ -376,9 +376,9 @@ def _polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
             cy = by[i] if side == 0 else ay[i]
             vx[j] = cx + big * vc[ki, cm]
             vy[j] = cy + big * vs[ki, cm]
+            m = cm  # the normal between corners m and e = m - 1 (mod 2k: no division)
             for r in range(ki):
-                m = (cm - r) % two  # the normal between corners m and m - 1
-                e = (cm - r - 1) % two
+                e = m - 1 if m > 0 else two - 1
                 j = q + side * (ki + 1) + 1 + r
                 u0 = nc[ki, m]
                 u1 = ns[ki, m]
@@ -387,6 +387,7 @@ def _polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
                 h[j] = max(u0 * ax[i] + u1 * ay[i], u0 * bx[i] + u1 * by[i]) + rho[i]
                 vx[j] = cx + big * vc[ki, e]
                 vy[j] = cy + big * vs[ki, e]
+                m = e
         box[i, 0] = min(ax[i], bx[i]) - big
         box[i, 1] = min(ay[i], by[i]) - big
         box[i, 2] = max(ax[i], bx[i]) + big
