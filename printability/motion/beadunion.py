@@ -612,7 +612,7 @@ def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, k, phase, start,
             hi_x = max(px, qx)
             lo_y = min(py, qy)
             hi_y = max(py, qy)
-            half = 0.5 * math.hypot(qx - px, qy - py)
+            half = 0.5 * math.sqrt((qx - px) ** 2 + (qy - py) ** 2)  # (libm hypot: 3 % of all)
             mx = 0.5 * (px + qx)
             my = 0.5 * (py + qy)
             n_iv = 0
