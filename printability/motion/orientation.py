@@ -470,7 +470,7 @@ def plan_orientations(
             alt = _other_solution(angle[bad], c1[bad], c2[bad], per, machine)
             other = np.flatnonzero(alt != angle[bad])
             if other.size:
-                hit = fp.fits(prepared_target, pieces, p0[bad[other]], p1[bad[other]],
+                hit = fp.fits(prepared_target, pieces, _rows(p0, bad[other]), _rows(p1, bad[other]),
                               alt[other], scale=None if scale is None else scale[bad[other]],
                               workers=workers)
                 angle[bad[other[hit]]] = alt[other[hit]]
@@ -488,21 +488,23 @@ def plan_orientations(
         # its ends (corners, line ends): it goes straight to the split, which searches the
         # ends at every orientation; short moves are searched at every orientation here.
         step = options.split_length or max(0.05, nozzle.radius / 4)
-        long_move = np.hypot(*(p1[mv] - p0[mv]).T) > 4 * step
+        p0_mv, p1_mv = _rows(p0, mv), _rows(p1, mv)
+        long_move = np.hypot(*(p1_mv - p0_mv).T) > 4 * step
         # the candidates in order of cost, once for the search and the split (a move's
         # row depends on its direction, width and previous orientation only)
         near, order = _cost_order(direction[mv], widths[mv], prev_mv, cands, beta, wtab,
                                   per, options)
         limit = np.where(long_move, 8, len(cands))
-        found, best = _search_ordered(prepared_target, pieces, p0[mv], p1[mv], near, order,
+        found, best = _search_ordered(prepared_target, pieces, p0_mv, p1_mv, near, order,
                                       sc, limit=limit, workers=workers)
         angle[mv[found]] = best[found]
-        rest = ~found
-        if rest.any():
+        rest = np.flatnonzero(~found)
+        if rest.size:
             pm, pa, pb, pp = _split_many(
-                prepared_target, pieces, p0[mv[rest]], p1[mv[rest]], direction[mv[rest]],
-                widths[mv[rest]], prev_mv[rest], cands, beta, wtab, per, nozzle, options,
-                None if sc is None else sc[rest], ordered=(near[rest], order[rest]),
+                prepared_target, pieces, _rows(p0_mv, rest), _rows(p1_mv, rest),
+                direction[mv[rest]], widths[mv[rest]], prev_mv[rest], cands, beta, wtab, per,
+                nozzle, options, None if sc is None else sc[rest],
+                ordered=(_rows(near, rest), _rows(order, rest)),
                 tried=_tried(limit[rest], len(cands)),
                 exact=None if exact is None else exact[rest], workers=workers)
             rows = (mv[rest][pm], pa, pb, pp)
@@ -518,13 +520,20 @@ def plan_orientations(
         cand = np.flatnonzero(np.asarray(chained, bool) & np.isfinite(step) & (step > 1e-9)
                               & (step <= options.fold_max))
         if cand.size:
-            fold[cand] = fp.fits(prepared_target, pieces, p0[cand], p1[cand], prev_a[cand],
+            fold[cand] = fp.fits(prepared_target, pieces, _rows(p0, cand), _rows(p1, cand),
+                                 prev_a[cand],
                               angle_end=angle[cand], workers=workers)
     width = np.full(n, np.nan)
     good = ~np.isnan(angle)
     rel = np.mod(angle[good] - direction[good], 360.0)
     width[good] = np.interp(rel, np.append(beta, 360.0), np.append(wtab, wtab[0]))
     return Plan(angle=angle, width=width, pieces=result_pieces, fold=fold, piece_rows=rows)
+
+
+def _rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``a[idx]`` for an index array: rows gathered by ``np.take``, about ten times faster
+    than numpy 2's fancy indexing of a 2-d array's rows (the same values)."""
+    return np.take(a, idx, axis=0)
 
 
 def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scale, machine, *,
@@ -548,7 +557,7 @@ def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scal
     test = np.flatnonzero(np.isfinite(prop) & (diff > 1e-6))
     out = np.where(np.isfinite(prop), prop, angle)
     if test.size:
-        ok = fp.fits(target, pieces, p0[test], p1[test], prop[test],
+        ok = fp.fits(target, pieces, _rows(p0, test), _rows(p1, test), prop[test],
                      scale=None if scale is None else scale[test], workers=workers)
         keep = test[~ok]
         # a rejected proposal keeps its old orientation, unwrapped near its neighbour
