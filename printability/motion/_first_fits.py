@@ -17,13 +17,19 @@ import numpy as np
 
 from printability.motion._covers import _clip, _edges_state
 from printability.motion._point_location import _locate
-from printability.motion._sweep import _deep_in_frame, _directions, _offsets, _sweep_frame
+from printability.motion._sweep import (
+    _deep_in_frame,
+    _directions,
+    _move_normal,
+    _offsets,
+    _sweep_frame,
+)
 
 __all__ = ["first_fits"]
 
 
 @numba.njit(cache=True, nogil=True)
-def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gseg, c0, s0, c1, s1,
+def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, scale, seg, gseg, c0, s0, c1, s1,
                k, gpos, gend, cb, sb, det, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx,
                ny, packed, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx, lny, lax,
                lay, lbx, lby, lrho, eps, order, out_idx, out_state):  # pragma: no cover
@@ -33,8 +39,8 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
     semi-axes ``pa``, ``pb``, centre ``pcx``, ``pcy``, rotation cos/sin
     ``prc``, ``prs``) along segment ``seg[q]`` (or ``gseg[g]`` for all the
     candidates of group ``g`` when ``gseg`` is non-empty: groups may then share
-    candidates) (``p0``, ``p1``, normal ``cn``,
-    ``sn``, ``scale`` if non-empty) at the orientation ``c0[q]``, ``s0[q]``
+    candidates) (``p0``, ``p1``, ``scale`` if non-empty; the normal of
+    :func:`_move_normal`) at the orientation ``c0[q]``, ``s0[q]``
     (turning to ``c1``, ``s1`` with factor ``k`` when ``k`` is non-empty).
     Group ``g`` tries ``gpos[g] … gend[g] - 1`` in order and stops at the
     first that fits (``out_state`` 1, ``out_idx`` its index), at the first
@@ -123,7 +129,8 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, scale, seg, gse
                 if state == 0:
                     continue
             if not directed:  # (found only now: the shortcut above ends most candidates)
-                _directions(cn[m], sn[m], cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], cu,
+                cn, sn = _move_normal(p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1])
+                _directions(cn, sn, cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], cu,
                             su, w)
                 directed = True
             for p in range(len(kind)):

@@ -24,8 +24,8 @@ import numpy as np
 
 from printability.motion._kernels import segments2 as _segments2
 
-__all__ = ["_deep_in_frame", "_deep_in_sweep", "_directions", "_offsets", "_sweep_frame",
-           "swept_kernel"]
+__all__ = ["_deep_in_frame", "_deep_in_sweep", "_directions", "_move_normal", "_offsets",
+           "_sweep_frame", "swept_kernel"]
 
 
 _DEEP = 1e-3
@@ -73,6 +73,20 @@ def _deep_in_frame(ex0, ey0, ex1, ey1, m00, m01, m10, m11, qx, qy, tx, ty):  # p
     by = m10 * ex1 + m11 * ey1
     lim = 1.0 - _DEEP
     return _segments2(ax, ay, bx, by, qx, qy, tx, ty) < lim * lim
+
+
+@numba.njit(cache=True, _nrt=False)
+def _move_normal(p0x, p0y, p1x, p1y):  # pragma: no cover
+    """The unit normal (cos, sin) of the move ``p0 → p1``, its direction turned by +90°
+    ((1, 0) for a move of no length): :func:`printability.motion.footprints._move_normals`
+    for one move, the same arithmetic (so the same bits: a square root and two divisions,
+    each correctly rounded)."""
+    dx = p1x - p0x
+    dy = p1y - p0y
+    length = math.sqrt(dx * dx + dy * dy)
+    if length > 0.0:
+        return -dy / length, dx / length
+    return 1.0, 0.0
 
 
 @numba.njit(cache=True, _nrt=False)

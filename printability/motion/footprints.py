@@ -344,7 +344,6 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
         return result
     p0 = np.ascontiguousarray(p0, dtype=float)
     p1 = np.ascontiguousarray(p1, dtype=float)
-    cn, sn = _move_normals(p0, p1)
     cb, sb, det = _base_directions(directions)
     if trig is None:
         c0, s0, c1, s1, k = _angle_trig(angle, angle_end, len(angle))
@@ -373,7 +372,7 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
         g_pos = gpos[groups]
         g_end = gend[groups]
         run = functools.partial(
-            _first_fits_part, (kind, pa, pb, pcx, pcy, prc, prs, p0, p1, cn, sn, sc, seg),
+            _first_fits_part, (kind, pa, pb, pcx, pcy, prc, prs, p0, p1, sc, seg),
             g_seg, (c0, s0, c1, s1, k), g_pos, g_end, (cb, sb, det, *grid, *loc, EPS, order),
             out_idx, out_state)
         shared_out(run, g_end - g_pos, workers, min_items=_PARALLEL_MIN)
@@ -386,6 +385,7 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
         q = out_idx[und]
         m = gseg[groups[und]] if len(gseg) else seg[q]
         ok = np.ones(q.size, dtype=bool)
+        cn, sn = _move_normals(p0[m], p1[m])
         for piece in pieces:
             kp, a, b, cx, cy, rc, rs = _piece_params(piece)
             nq = q.size
@@ -394,7 +394,7 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
             h = np.empty((nq, directions))
             ring = np.empty((nq, directions + 1, 2))
             turning = len(k) > 0
-            swept_kernel(kp, a, b, cx, cy, rc, rs, p0[m], p1[m], cn[m], sn[m], cb, sb, c0[q],
+            swept_kernel(kp, a, b, cx, cy, rc, rs, p0[m], p1[m], cn, sn, cb, sb, c0[q],
                          s0[q], c1[q] if turning else _EMPTY, s1[q] if turning else _EMPTY,
                          k[q] if turning else _EMPTY, sc[m] if len(sc) else _EMPTY, det, cu,
                          su, h, ring)
