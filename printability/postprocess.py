@@ -388,7 +388,8 @@ def postprocess_bytes(
     n_workers = _workers(options)
     part = _part_mask(g)
     part_idx = np.flatnonzero(part)
-    seg = g.segments(moves=moves[part_idx]) if part_idx.size and not narrow_beads else \
+    # (np.take: numpy 2 gathers records by indexing ~25x slower)
+    seg = g.segments(moves=np.take(moves, part_idx)) if part_idx.size and not narrow_beads else \
         np.zeros(0, dtype=[("x0", "f8"), ("y0", "f8"), ("x1", "f8"), ("y1", "f8"),
                            ("e", "f8"), ("move", "i8")])
     # new lines are rounded to 4 decimals: keep that displacement inside the tolerance

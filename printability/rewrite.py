@@ -118,9 +118,9 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
     # chord lengths of climbing moves (spiral vase), as the reference measures them
     s_len = np.zeros(n_seg)
     if n_seg:
-        sm = moves[seg_move]
-        climbs = np.flatnonzero((sm["z1"] != sm["z0"]) & np.isfinite(sm["z0"])
-                                & np.isfinite(sm["z1"]))
+        # (two fields gathered, not whole rows of the wide move records: 1.5 ms on the cube)
+        z0, z1 = moves["z0"][seg_move], moves["z1"][seg_move]
+        climbs = np.flatnonzero((z1 != z0) & np.isfinite(z0) & np.isfinite(z1))
         x0, y0 = seg["x0"][climbs].tolist(), seg["y0"][climbs].tolist()
         x1, y1 = seg["x1"][climbs].tolist(), seg["y1"][climbs].tolist()
         s_len[climbs] = [math.hypot(c - a, d - b) for a, b, c, d in zip(x0, y0, x1, y1,

@@ -89,7 +89,7 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
             rows = np.concatenate([per_layer[layers[j]] for j in own])
             shift = np.repeat(tiling.offset[first + own], [per_layer[layers[j]].size for j in own],
                               axis=0)
-            s = seg[rows]
+            s = np.take(seg, rows)  # (numpy 2 gathers records by indexing ~25x slower)
             u = bead_union(np.column_stack([s["x0"], s["y0"]]) + shift,
                            np.column_stack([s["x1"], s["y1"]]) + shift, width[rows] / 2,
                            grow=tolerance, workers=workers if b == 0 else 1)
@@ -156,7 +156,7 @@ def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
     sizes = np.array([per_layer[k].size for k in layers], dtype=np.int64)
     rows = np.concatenate([per_layer[k] for k in layers])
     first = np.cumsum(sizes) - sizes  # every layer here has beads
-    s = seg[rows]
+    s = np.take(seg, rows)
     grow = width[rows] / 2 + tolerance
     for c, (a, b) in enumerate((("x0", "x1"), ("y0", "y1"))):
         lo[:, c] = np.minimum.reduceat(np.minimum(s[a], s[b]) - grow, first)
