@@ -170,7 +170,7 @@ def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
     some = np.flatnonzero(count > 0)
     if some.size:
         take = np.concatenate([porder[a0[j]:a1[j]] for j in some])
-        q = pseg[take]
+        q = np.take(pseg, take)
         ok = (np.isfinite(q["x0"]) & np.isfinite(q["y0"]) & np.isfinite(q["x1"])
               & np.isfinite(q["y1"]))
         starts = np.cumsum(count[some]) - count[some]

@@ -256,11 +256,14 @@ def layer_beads(
     cats = g.feature_category_of_moves()
     keep = m["is_extrusion"] & (m["layer"] >= 0) & ~np.isin(cats, list(excl)) & ~m["wipe"]
     idx = np.flatnonzero(keep)
-    seg = g.segments(settings=settings, moves=m[idx])
+    # (records gathered with np.take: ~25x faster than indexing in numpy 2)
+    seg = g.segments(settings=settings, moves=np.take(m, idx))
     mv = idx[seg["move"]]  # row of g.moves of each segment
     length = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"])
     ok = length > 0
-    seg, mv = seg[ok], mv[ok]
+    if not ok.all():
+        keep_ok = np.flatnonzero(ok)
+        seg, mv = np.take(seg, keep_ok), mv[keep_ok]
     layer = m["layer"][mv]
     width, derived, over = segment_widths(g, seg, mv, filament_diameter=filament_diameter,
                                           model=model, use_width_comments=use_width_comments,
