@@ -121,7 +121,8 @@ def _edges_state(cu, su, h, bx0, by0, bx1, by1, start, items, x0, y0, cell, nx, 
                 if _clip(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
                     continue
                 t = _clip(ax, ay, bx, by, cu, su, h, -eps, order)
-                if t > 0.0 and t * math.hypot(bx - ax, by - ay) > eps:
+                # (a square root, not libm's hypot: coordinates in mm cannot overflow)
+                if t > 0.0 and t * math.sqrt((bx - ax) ** 2 + (by - ay) ** 2) > eps:
                     found[0] = items[q]
                     return 0
                 state = -1

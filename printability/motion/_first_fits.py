@@ -180,7 +180,7 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, scale, seg, gseg, c0, s
                 if st == 0:
                     e = found[0]
                     _to_front(mru, mru_len, len(mru) - 1, e,
-                              math.hypot(ex1[e] - ex0[e], ey1[e] - ey0[e]))
+                              math.sqrt((ex1[e] - ex0[e]) ** 2 + (ey1[e] - ey0[e]) ** 2))
                 if st == 1:
                     if centred and not (scaled and scale[m] < 0.0):
                         if where < 0:
