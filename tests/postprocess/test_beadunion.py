@@ -41,7 +41,19 @@ def _check_against_geos(p0, p1, r, tau, rng):
     corners = shapely.points(shapely.get_coordinates(ref.boundary))
     assert shapely.distance(corners, edges).max(initial=0.0) < 1e-5
     assert u.area == pytest.approx(ref.area, rel=2e-6, abs=1e-12)
-    assert u.perimeter == pytest.approx(ref.boundary.length, rel=1e-6)
+    # GEOS may keep a seam where two polygons touch along an edge from either side (their
+    # caps' edges run in the same few directions): its points are inside the union on both
+    # sides, and G' keeps no edge there (the tie rule). Each seam counts twice in GEOS's
+    # boundary length.
+    seams = shapely.line_merge(shapely.difference(ref.boundary, edges.buffer(1e-7)))
+    for part in shapely.get_parts(seams):
+        (ax, ay), (bx, by) = part.coords[0], part.coords[-1]
+        mx, my = part.interpolate(0.5, normalized=True).coords[0]
+        nx, ny = np.array([ay - by, bx - ax]) / math.hypot(bx - ax, by - ay)
+        assert shapely.contains_xy(ref, [mx + 1e-7 * nx, mx - 1e-7 * nx],
+                                   [my + 1e-7 * ny, my - 1e-7 * ny]).all(), \
+            f"a piece of the union's boundary is missing near ({mx}, {my})"
+    assert u.perimeter == pytest.approx(ref.boundary.length - 2 * seams.length, rel=1e-6)
     x0, y0, x1, y1 = ref.bounds
     px, py = rng.uniform(x0, x1, 4000), rng.uniform(y0, y1, 4000)
     np.testing.assert_array_equal(union_contains_xy(u, px, py), shapely.intersects_xy(ref, px, py))
@@ -81,6 +93,7 @@ def test_real_layers_match_geos(request, fixture):
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 40),
        tau=st.sampled_from([0.95e-3, 0.01, 0.05]))
 @example(seed=8966, n=11, tau=0.01)  # two beads touching along an edge (found by hypothesis)
+@example(seed=11288, n=29, tau=0.05)  # two caps touching along an edge: a seam in GEOS's union
 def test_random_beads_match_geos(seed, n, tau):
     rng = np.random.default_rng(seed)
     p0 = rng.uniform(0, 4, (n, 2)).round(3)  # slicer-like: 1 µm coordinates
