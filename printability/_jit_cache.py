@@ -1,0 +1,98 @@
+"""The compiled kernels' on-disk caches kept in step with their sources.
+
+numba caches each compiled kernel beside its source (``__pycache__/*.nbi``, ``*.nbc``) and
+checks only that one file's time and size before it loads it. A kernel that calls a kernel
+of another module compiles the callee into itself, so when only the callee's file changes
+(a ``git pull`` into an editable install), the caller's cache still holds the old callee:
+seen here when the footprint scan's edge rows went from 8 to 4 columns in one file, and the
+cached search in another went on reading 8 and accepting footprints it should have refused.
+
+:func:`check`, run when the package is imported (before any kernel is loaded), stamps the
+modules that hold kernels (:data:`KERNEL_MODULES`: name, time and size of each) and, when the
+stamp differs from the one written beside their caches, removes those modules' caches: the
+kernels are compiled again on their first calls (``printability warmup`` does it ahead).
+Caches outside the source tree (numba's user-wide folder, used when the tree cannot be
+written) belong to installs that pip rewrites whole, every file with a new time, so numba's
+own check suffices there. Cost: one ``stat`` per kernel module (about 0.1 ms).
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["KERNEL_MODULES", "check"]
+
+KERNEL_MODULES = (
+    "gcode/_lexer.py",
+    "gcode/_machine.py",
+    "printability/_emit_kernel.py",
+    "printability/_rewrite_kernel.py",
+    "printability/mmc/_containment.py",
+    "printability/mmc/_raster_kernels.py",
+    "printability/mmc/reference.py",
+    "printability/motion/_boundary_grid.py",
+    "printability/motion/_covers.py",
+    "printability/motion/_first_fits.py",
+    "printability/motion/_kernels.py",
+    "printability/motion/_plan_kernels.py",
+    "printability/motion/_point_location.py",
+    "printability/motion/_sweep.py",
+    "printability/motion/beadunion.py",
+    "printability/motion/tiles.py",
+    "printability/targets.py",
+)
+"""The modules with cached kernels, relative to the folder holding the packages (a test
+checks the list against the sources)."""
+
+_STAMP = os.path.join("printability", "__pycache__", "kernel-sources.stamp")
+
+
+def _stamp(root: str) -> str:
+    rows = []
+    for rel in KERNEL_MODULES:
+        try:
+            st = os.stat(os.path.join(root, rel))
+        except OSError:
+            rows.append(f"{rel} missing")
+            continue
+        rows.append(f"{rel} {st.st_mtime_ns} {st.st_size}")
+    return "\n".join(rows) + "\n"
+
+
+def check(root: str | None = None) -> bool:
+    """Remove the in-tree kernel caches when a kernel module changed since they were written;
+    whether it removed any. ``root``: the folder holding the packages (default: this
+    installation's). Never raises: a tree it cannot read or write is left as it is."""
+    if root is None:
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    stamp = _stamp(root)
+    path = os.path.join(root, _STAMP)
+    try:
+        with open(path, encoding="utf-8") as f:
+            if f.read() == stamp:
+                return False
+    except OSError:
+        pass
+    removed = False
+    for folder in sorted({os.path.join(root, os.path.dirname(rel), "__pycache__")
+                          for rel in KERNEL_MODULES}):
+        try:
+            names = os.listdir(folder)
+        except OSError:
+            continue
+        for name in names:
+            if name.endswith((".nbi", ".nbc")):
+                try:
+                    os.unlink(os.path.join(folder, name))
+                    removed = True
+                except OSError:
+                    pass  # another process removed it first, or the tree is read-only
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        tmp = f"{path}.{os.getpid()}.tmp"
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(stamp)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return removed
