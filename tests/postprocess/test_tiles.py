@@ -214,4 +214,5 @@ def test_repeated_layers_share_a_tile_in_every_batch(union_sizes, monkeypatch):
     monkeypatch.setattr(pp_targets, "_BATCH_AREA", 400.0)  # two 12 mm tiles a batch
     _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
     n = [r.moves for r in res.layers]
-    assert union_sizes == [n[0] + n[1], n[2], n[4]]
+    # (the batches' unions are built on threads, side by side: in either order)
+    assert sorted(union_sizes) == sorted([n[0] + n[1], n[2], n[4]])
