@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from printability._arrays import take_rows
+
 __all__ = ["SEGMENT_DTYPE", "arc_chord_count", "arc_length", "linearise"]
 
 SEGMENT_DTYPE = np.dtype(
@@ -100,7 +102,7 @@ def linearise(moves: np.ndarray, tolerance: float) -> np.ndarray:
     n = counts[idx].astype(float)
     t0 = k / n
     t1 = (k + 1) / n
-    m = np.take(moves, idx)  # (numpy 2 gathers records by indexing ~25x slower)
+    m = take_rows(moves, idx)
     for c in ("x", "y", "z"):
         a0, a1 = m[c + "0"], m[c + "1"]
         seg[c + "0"] = a0 + (a1 - a0) * t0

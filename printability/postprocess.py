@@ -63,6 +63,7 @@ import numpy as np
 from gcode import NON_PART_CATEGORIES, parse_gcode
 from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
+from printability._arrays import take_rows
 from printability.errors import FileFormatError, InputError, PrintabilityOSError
 from printability.machine import Machine, parse_machine
 from printability.motion.orientation import (
@@ -388,8 +389,7 @@ def postprocess_bytes(
     n_workers = _workers(options)
     part = _part_mask(g)
     part_idx = np.flatnonzero(part)
-    # (np.take: numpy 2 gathers records by indexing ~25x slower)
-    seg = g.segments(moves=np.take(moves, part_idx)) if part_idx.size and not narrow_beads else \
+    seg = g.segments(moves=take_rows(moves, part_idx)) if part_idx.size and not narrow_beads else \
         np.zeros(0, dtype=[("x0", "f8"), ("y0", "f8"), ("x1", "f8"), ("y1", "f8"),
                            ("e", "f8"), ("move", "i8")])
     # new lines are rounded to 4 decimals: keep that displacement inside the tolerance

@@ -24,6 +24,7 @@ import numpy as np
 
 from gcode.rotary import nearest_equivalent
 from gcode.writer import WriterOptions, format_number
+from printability._arrays import take_rows
 from printability.errors import InputError
 from printability.motion.orientation import piece_rows_of
 from printability.nozzle import Nozzle
@@ -563,7 +564,7 @@ def _piece_scales(seg, p_seg, phi, widths, h_seg, turns: bool, e_policy: str, no
     scale = np.ones(len(p_seg))
     live = np.isfinite(phi)
     if turns and live.any():
-        sg = np.take(seg, p_seg[live])  # (records: np.take, ~25x faster in numpy 2)
+        sg = take_rows(seg, p_seg[live])
         rel = np.degrees(np.arctan2(sg["y1"] - sg["y0"], sg["x1"] - sg["x0"]))
         w_laid = nozzle.bead_widths(rel, phi[live])
         scale[live] = e_scales(w_laid, np.asarray(widths, dtype=float)[p_seg[live]],

@@ -20,6 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 
+from printability._arrays import take_rows
 from printability.motion.beadunion import INNER, SIDE, bead_union
 from printability.motion.footprints import grown_target
 from printability.motion.tiles import tile_index, tile_layers
@@ -89,7 +90,7 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
             rows = np.concatenate([per_layer[layers[j]] for j in own])
             shift = np.repeat(tiling.offset[first + own], [per_layer[layers[j]].size for j in own],
                               axis=0)
-            s = np.take(seg, rows)  # (numpy 2 gathers records by indexing ~25x slower)
+            s = take_rows(seg, rows)
             u = bead_union(np.column_stack([s["x0"], s["y0"]]) + shift,
                            np.column_stack([s["x1"], s["y1"]]) + shift, width[rows] / 2,
                            grow=tolerance, workers=workers if b == 0 else 1)
@@ -156,7 +157,7 @@ def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
     sizes = np.array([per_layer[k].size for k in layers], dtype=np.int64)
     rows = np.concatenate([per_layer[k] for k in layers])
     first = np.cumsum(sizes) - sizes  # every layer here has beads
-    s = np.take(seg, rows)
+    s = take_rows(seg, rows)
     grow = width[rows] / 2 + tolerance
     for c, (a, b) in enumerate((("x0", "x1"), ("y0", "y1"))):
         lo[:, c] = np.minimum.reduceat(np.minimum(s[a], s[b]) - grow, first)
@@ -170,7 +171,7 @@ def _layer_boxes(seg, width, per_layer, layers, tolerance, planned, reach):
     some = np.flatnonzero(count > 0)
     if some.size:
         take = np.concatenate([porder[a0[j]:a1[j]] for j in some])
-        q = np.take(pseg, take)
+        q = take_rows(pseg, take)
         ok = (np.isfinite(q["x0"]) & np.isfinite(q["y0"]) & np.isfinite(q["x1"])
               & np.isfinite(q["y1"]))
         starts = np.cumsum(count[some]) - count[some]

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from printability._arrays import take_rows
 from printability.motion import footprints as fp
 from printability.motion._plan_kernels import merge_pieces, points_along, split_intervals
 
@@ -120,8 +121,7 @@ def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast, *,
     allcols = np.ascontiguousarray(np.column_stack(tops), dtype=float)
     col_set = np.repeat(np.arange(len(tops)), [t.shape[1] for t in tops])
     cand_iv = np.repeat(np.arange(iv_mv.size), ncol)
-    # (np.take: a row gather by fancy indexing is about ten times slower in numpy 2)
-    phis = np.take(allcols, iv_mv, axis=0).reshape(-1)
+    phis = take_rows(allcols, iv_mv).reshape(-1)
     gpos = ivpos[:-1] * ncol
     gend = ivpos[1:] * ncol
     best_iv = np.full(nm, -1, np.int64)
@@ -144,8 +144,7 @@ def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast, *,
         return best_iv, best_phi
     # cos/sin of each move's orientations, once, gathered per candidate
     rad = np.deg2rad(allcols)
-    trig = (np.take(np.cos(rad), iv_mv, axis=0).reshape(-1),
-            np.take(np.sin(rad), iv_mv, axis=0).reshape(-1))
+    trig = (take_rows(np.cos(rad), iv_mv).reshape(-1), take_rows(np.sin(rad), iv_mv).reshape(-1))
     inner = gend - ncol
     probe = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, inner, gend,
                           trig=trig, workers=workers)

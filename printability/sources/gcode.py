@@ -74,6 +74,7 @@ import numpy as np
 import shapely
 
 from gcode import CATEGORIES, NON_PART_CATEGORIES, GCodeFile, read_gcode
+from printability._arrays import take_rows
 from printability.errors import FileFormatError, InputError
 from printability.geometry import as_region
 from printability.layers import Layer, LayerStack
@@ -256,14 +257,12 @@ def layer_beads(
     cats = g.feature_category_of_moves()
     keep = m["is_extrusion"] & (m["layer"] >= 0) & ~np.isin(cats, list(excl)) & ~m["wipe"]
     idx = np.flatnonzero(keep)
-    # (records gathered with np.take: ~25x faster than indexing in numpy 2)
-    seg = g.segments(settings=settings, moves=np.take(m, idx))
+    seg = g.segments(settings=settings, moves=take_rows(m, idx))
     mv = idx[seg["move"]]  # row of g.moves of each segment
     length = np.hypot(seg["x1"] - seg["x0"], seg["y1"] - seg["y0"])
     ok = length > 0
-    if not ok.all():
-        keep_ok = np.flatnonzero(ok)
-        seg, mv = np.take(seg, keep_ok), mv[keep_ok]
+    keep_ok = np.flatnonzero(ok)
+    seg, mv = take_rows(seg, keep_ok), mv[keep_ok]
     layer = m["layer"][mv]
     width, derived, over = segment_widths(g, seg, mv, filament_diameter=filament_diameter,
                                           model=model, use_width_comments=use_width_comments,
