@@ -30,6 +30,8 @@ KERNEL_MODULES = (
     "printability/mmc/_containment.py",
     "printability/mmc/_raster_kernels.py",
     "printability/mmc/reference.py",
+    "printability/motion/_bead_boundary.py",
+    "printability/motion/_bead_polygons.py",
     "printability/motion/_boundary_grid.py",
     "printability/motion/_covers.py",
     "printability/motion/_first_fits.py",

@@ -181,7 +181,9 @@ def _random_polygons(rng, n, *, lengths, radii, tau):
     """n bead polygons on random segments (lengths drawn from ``lengths``, radii uniform
     in ``radii``): their ends, side offsets, half-planes, edges per half turn, phases and
     corner cosines."""
-    from printability.motion.beadunion import INNER, _corner_cosines, _polygons
+    from printability.motion._bead_boundary import _corner_cosines
+    from printability.motion._bead_polygons import _polygons
+    from printability.motion.beadunion import INNER
 
     ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
     length = rng.choice(lengths, n)
@@ -199,7 +201,8 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
     """_clip_windows skips the half-planes that hold both ends of an edge by a margin; the
     interval must be the full Liang–Barsky loop's, bit for bit, for edges at any distance
     and direction from the polygon (near its sides, its caps and far from it)."""
-    from printability.motion.beadunion import _EPS, _clip, _clip_windows, _window
+    from printability.motion._bead_boundary import _clip, _clip_windows, _window
+    from printability.motion.beadunion import _EPS
 
     rng = np.random.default_rng(seed)
     n = 40
@@ -232,7 +235,8 @@ def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
     """_clip_windows may take any windows that hold the planes the ends need: widened
     windows, windows far apart or wrapping past plane 0, evaluated as one arc or two, give
     the full loop's interval to the bit."""
-    from printability.motion.beadunion import _EPS, _clip, _clip_windows, _window
+    from printability.motion._bead_boundary import _clip, _clip_windows, _window
+    from printability.motion.beadunion import _EPS
 
     rng = np.random.default_rng(seed)
     n = 30
