@@ -29,9 +29,9 @@ import math
 
 import numpy as np
 
-__all__ = ["ERR_MESSAGES", "FLAVOR_CODES", "MOVE_FIELDS", "run_machine"]
+from gcode.flavors import flavor_named
 
-FLAVOR_CODES = {"marlin": 0, "klipper": 1, "reprap": 2, "generic": 3}
+__all__ = ["ERR_MESSAGES", "MOVE_FIELDS", "run_machine"]
 
 ERR_MESSAGES = {
     1: "a word of this move is not a number (expected letter + number, e.g. X12.5)",
@@ -166,7 +166,7 @@ def _machine_impl(kind, letter, major, minor, wfirst, wcount, bad,
                 elif c == 80:
                     p_turns = int(v)
             xyz_rel = not abs_xyz
-            if flavor == 0 or flavor == 3:
+            if flavor == 0:
                 e_rel = not abs_e
             else:
                 e_rel = (not abs_e) or (not abs_xyz)
@@ -307,11 +307,11 @@ def _machine_impl(kind, letter, major, minor, wfirst, wcount, bad,
                     epos = v
         elif mj == 90 and mn < 0:
             abs_xyz = True
-            if flavor == 0 or flavor == 3:
+            if flavor == 0:
                 abs_e = True
         elif mj == 91 and mn < 0:
             abs_xyz = False
-            if flavor == 0 or flavor == 3:
+            if flavor == 0:
                 abs_e = False
         elif mj == 20:
             unit = 25.4
@@ -392,7 +392,7 @@ def run_machine(lines: dict, words: dict, *, flavor: str, engine: str = "numba")
         lines["kind"], lines["letter"], lines["major"], lines["minor"],
         lines["word_first"], lines["word_count"], lines["bad_column"],
         words["letter"], words["value"], words["flags"],
-        FLAVOR_CODES[flavor], int(is_move.sum()),
+        flavor_named(flavor).reader_code, int(is_move.sum()),
     )
     moves = dict(zip(MOVE_FIELDS, out[2:], strict=True))
     return int(out[0]), int(out[1]), moves

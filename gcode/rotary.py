@@ -223,7 +223,9 @@ def feed_for_move(
         XY speed is kept) or ``"inverse-time"`` (G93: F is 1 / duration in
         minutes).
     rotary_feed
-        Speed of a rotation-only move, °/min.
+        Top speed of the rotary axis, °/min: the speed of a rotation-only move,
+        and the limit of a move's turn (``euclidean`` and ``inverse-time`` then
+        lengthen the move; under ``xy`` the firmware does it).
     """
     dphi = abs(rotation)
     if xy_length <= 1e-12:
@@ -232,8 +234,14 @@ def feed_for_move(
         return rotary_feed
     if policy == "xy":
         return feed_xy
+    # a move lasts as long as its slower part: the XY motion at feed_xy or the turn at
+    # rotary_feed (the axis cannot turn faster; F2018025 for a 90° turn over 0.05 mm
+    # would ask it to)
+    slow_turn = dphi * feed_xy > rotary_feed * xy_length
     if policy == "euclidean":
+        if slow_turn:
+            return rotary_feed * math.hypot(xy_length, dphi) / dphi
         return feed_xy * math.hypot(xy_length, dphi) / xy_length
     if policy == "inverse-time":
-        return feed_xy / xy_length
+        return rotary_feed / dphi if slow_turn else feed_xy / xy_length
     raise ValueError(f"unknown feed policy {policy!r}")

@@ -613,6 +613,8 @@ def header_lines(
     mode: str,
     summary: Sequence[Mapping[str, float]] = (),
     notes: Sequence[str] = (),
+    flavor: str | None = None,
+    e_mode: str | None = None,
 ) -> list[str]:
     """The comment block at the top of a file printability wrote or rewrote.
 
@@ -631,6 +633,11 @@ def header_lines(
         ``dropped_moves``, ``dropped_length`` (mm), ``split_moves``.
     notes
         Free remarks, one per line.
+    flavor
+        The firmware flavor the file is written for (:mod:`gcode.flavors`).
+    e_mode
+        How the file's E words count (``relative``, ``absolute`` or ``mixed``);
+        None: as the options say.
     """
     o = options
     lines = [
@@ -639,8 +646,9 @@ def header_lines(
         f"; printability: machine = {machine}",
         f"; printability: rotary axis = {o.letter if o.rotary else 'none (round nozzle)'}"
         + (f", degrees, period {o.period:g}" if o.rotary else ""),
-        f"; printability: feed policy = {o.feed_policy}, E = "
-        + ("relative" if o.relative_e else "absolute")
+        (f"; printability: flavor = {flavor}, " if flavor else "; printability: ")
+        + f"feed policy = {o.feed_policy}, E = "
+        + (e_mode or ("relative" if o.relative_e else "absolute"))
         + f", bead model = {o.bead_model}, filament = {o.filament_diameter:g} mm",
     ]
     if summary:

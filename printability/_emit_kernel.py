@@ -167,6 +167,8 @@ def _feed(buf, n, ks, feed, length, rotation, oi, of):  # pragma: no cover
             f = of[3]
         elif oi[4] == _XY:
             f = feed
+        elif dphi * feed > of[3] * length:  # the turn is the slower part
+            f = of[3] * hypot(length, dphi) / dphi
         else:
             f = feed * hypot(length, dphi) / length
     ok, m = fixed_digits(f, oi[3])

@@ -44,7 +44,7 @@ _P10 = np.array([10.0 ** k for k in range(23)])
 _SPLIT = 134217729.0  # 2^27 + 1: Veltkamp's splitter for binary64
 _LIMIT = 4.0e15  # below 2^52: p - floor(p) and that less 1/2 are exact
 
-_TRAVEL, _RESET, _WORK = 1, 2, 3  # event codes of printability.rewrite
+_TRAVEL, _RESET, _WORK, _UNRETRACT = 1, 2, 3, 4  # event codes of printability.rewrite
 
 
 @numba.njit(cache=True, nogil=True)
@@ -258,6 +258,14 @@ def _put_move(buf, n, x, y, with_z, z, xd):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
+def _put_feed(buf, n, f):  # pragma: no cover
+    """`` F`` and ``format_number(f, 3)`` at ``buf[n:]`` (40 bytes free)."""
+    buf[n] = 32
+    buf[n + 1] = 70
+    return put_fixed(buf, n + 2, f, 3)
+
+
+@numba.njit(cache=True, nogil=True)
 def _eol(data, a, b):  # pragma: no cover
     """(start, end) of the line ending of ``data[a:b]`` as :func:`printability.rewrite.eol_of`
     gives it; (-1, -1) stands for an added ``\\n``."""
@@ -341,8 +349,12 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                    s_in_pieces, s_p0, s_p1, s_len,
                    p_t0, p_t1, p_angle, p_scale,
                    letter, d_ang, xd, ed, period, lo, hi, unbounded, fold, unwind, turns,
-                   n_layers):  # pragma: no cover
+                   n_layers, m_feed, rot_feed):  # pragma: no cover
     """The reference's walk over the events, writing the file from ``pos0`` on.
+
+    A rotation-only line carries ``F<rot_feed>`` (degrees per minute) when ``rot_feed``
+    is positive and the feed in force after it is known, and the next motion line then
+    restores that feed (``m_feed``, mm/min) unless it has an F of its own.
 
     Returns (status, buffer, length, changed, inserted, rotary words, rotary words per
     layer + 1, the line declined or -1).
@@ -358,6 +370,8 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
     cur_m = np.int64(0)  # format_number(cur) as digits: equal texts, equal integers
     pos = pos0
     pending = -1
+    unret = -1  # an un-retract since the last travel, where a turn goes before it
+    unret_mv = -1
     was_g1 = np.array([71, 49, 32], np.uint8)  # "G1 "
     g92 = np.array([71, 57, 50, 32, 69], np.uint8)  # "G92 E"
     note = np.array([32, 59, 32, 112, 114, 105, 110, 116, 97, 98, 105, 108, 105, 116, 121,
@@ -368,12 +382,25 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
         code = ev_code[q]
         if code == _TRAVEL:
             pending = li
+            unret = -1
+            continue
+        if code == _UNRETRACT:
+            unret = li
+            unret_mv = ev_move[q]
             continue
         if code == _RESET:
             pending = -1
+            unret = -1
             continue
         travel = pending  # the travel a turn may be folded into, or -1
         pending = -1
+        ur = unret  # the un-retract a turn goes before when it cannot be folded, or -1
+        ur_mv = unret_mv
+        unret = -1
+        u_line = -1  # the un-retract a turn was put before, and its coordinate
+        u_c = 0.0
+        need_f = False  # a rotation line set F: the next motion line restores the feed
+        feed = m_feed[mi]
         a = starts[li]
         b = starts[li + 1]
         layer = m_layer[mi]
@@ -422,10 +449,19 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                         t_line = travel
                         t_gb = tb - starts[travel]
                         t_word_c = c
+                    elif ur >= 0:
+                        u_line = ur
+                        u_c = c
+                        inserted += 1
                     else:
                         ns = _put(scratch, ns, was_g1)
                         ns = _put(scratch, ns, letter)
                         ns = put_fixed(scratch, ns, c, d_ang)
+                        if rot_feed > 0 and math.isfinite(feed):
+                            ns = _put_feed(scratch, ns, rot_feed)
+                            if ns < 0:
+                                return DECLINED, buf, n, changed, inserted, rotary, turned, li
+                            need_f = True
                         ns = _put_eol(scratch, ns, data, e0, e1)
                         inserted += 1
                     rotary += 1
@@ -434,6 +470,11 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     cur_m = cm
             scale = s_scale[a0]
             ga, gb = simple_span(data, a, b)
+            if need_f:
+                if ga < 0:
+                    return DECLINED, buf, n, changed, inserted, rotary, turned, li
+                fa, fb = _word(data, ga, gb, 70)
+                need_f = fa < 0
             if scale != 1.0:
                 if ga < 0:
                     return DECLINED, buf, n, changed, inserted, rotary, turned, li
@@ -452,6 +493,10 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                         scratch[ns] = 32
                         ns = _put(scratch, ns + 1, letter)
                         ns = put_fixed(scratch, ns, add_c, d_ang)
+                    if need_f:
+                        ns = _put_feed(scratch, ns, feed)
+                        if ns < 0:
+                            return DECLINED, buf, n, changed, inserted, rotary, turned, li
                     ns = _copy(scratch, ns, data, gb, b)
                     changed += 1
                     if not e_rel:
@@ -471,6 +516,13 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     scratch[ns] = 32
                     ns = _put(scratch, ns + 1, letter)
                     ns = put_fixed(scratch, ns, add_c, d_ang)
+                    ns = _copy(scratch, ns, data, gb, b)
+                    changed += 1
+                elif need_f:
+                    ns = _copy(scratch, ns, data, a, gb)
+                    ns = _put_feed(scratch, ns, feed)
+                    if ns < 0:
+                        return DECLINED, buf, n, changed, inserted, rotary, turned, li
                     ns = _copy(scratch, ns, data, gb, b)
                     changed += 1
                 else:
@@ -554,14 +606,42 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                             c_val = c
                             if not (s_fold[s] and not in_p
                                     and abs(c - cur) <= s_turn[s] + 1e-6):
-                                ns = _put(scratch, ns, was_g1)
-                                ns = _put(scratch, ns, letter)
-                                ns = put_fixed(scratch, ns, c, d_ang)
-                                if first_end < 0:
-                                    first_end = ns
-                                ns = _put_eol(scratch, ns, data, e0, e1)
-                                n_new += 1
                                 c_word = False
+                                if fold and travel >= 0 and ns == 0 and t_line < 0:
+                                    # the first thing this move does: folded into the travel
+                                    if unwind:
+                                        ok, c, cm = _coordinate(phi, 0.0, period, lo, hi,
+                                                                unbounded, d_ang)
+                                        if not ok:
+                                            return (DECLINED, buf, n, changed, inserted,
+                                                    rotary, turned, li)
+                                    ta, tb = simple_span(data, starts[travel],
+                                                         starts[travel + 1])
+                                    if ta < 0:
+                                        return (DECLINED, buf, n, changed, inserted, rotary,
+                                                turned, travel)
+                                    t_line = travel
+                                    t_gb = tb - starts[travel]
+                                    t_word_c = c
+                                elif ur >= 0 and ns == 0 and u_line < 0:
+                                    # the first thing this move does: before the un-retract
+                                    u_line = ur
+                                    u_c = c
+                                    inserted += 1
+                                else:
+                                    ns = _put(scratch, ns, was_g1)
+                                    ns = _put(scratch, ns, letter)
+                                    ns = put_fixed(scratch, ns, c, d_ang)
+                                    if rot_feed > 0 and math.isfinite(feed):
+                                        ns = _put_feed(scratch, ns, rot_feed)
+                                        if ns < 0:
+                                            return (DECLINED, buf, n, changed, inserted,
+                                                    rotary, turned, li)
+                                        need_f = True
+                                    if first_end < 0:
+                                        first_end = ns
+                                    ns = _put_eol(scratch, ns, data, e0, e1)
+                                    n_new += 1
                             rotary += 1
                             turned[layer + 1] += 1
                             cur = c
@@ -584,6 +664,11 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     if first and fa >= 0:
                         scratch[ns] = 32
                         ns = _copy(scratch, ns + 1, data, fa, fb)
+                    elif need_f:
+                        ns = _put_feed(scratch, ns, feed)
+                        if ns < 0:
+                            return DECLINED, buf, n, changed, inserted, rotary, turned, li
+                    need_f = False
                     first = False
                     if first_end < 0:
                         first_end = ns
@@ -643,6 +728,37 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
             n = _put(buf, n + 1, letter)
             n = put_fixed(buf, n, t_word_c, d_ang)
             pos = ta + t_gb
+        if u_line >= 0:
+            # the turn before the un-retract: nothing is deposited at the old orientation
+            ua = starts[u_line]
+            ub = starts[u_line + 1]
+            ga, gb = simple_span(data, ua, ub)
+            if ga < 0:
+                return DECLINED, buf, n, changed, inserted, rotary, turned, u_line
+            fa, fb = _word(data, ga, gb, 70)
+            u_feed = m_feed[ur_mv]
+            with_f = rot_feed > 0 and math.isfinite(u_feed)
+            buf = _reserve(buf, n, (ub - pos) + 200 + len(letter))
+            n = _copy(buf, n, data, pos, ua)
+            n = _put(buf, n, was_g1)
+            n = _put(buf, n, letter)
+            n = put_fixed(buf, n, u_c, d_ang)
+            if with_f:
+                n = _put_feed(buf, n, rot_feed)
+                if n < 0:
+                    return DECLINED, buf, n, changed, inserted, rotary, turned, u_line
+            ue0, ue1 = _eol(data, ua, ub)
+            n = _put_eol(buf, n, data, ue0, ue1)
+            if with_f and fa < 0:
+                n = _copy(buf, n, data, ua, gb)
+                n = _put_feed(buf, n, u_feed)
+                if n < 0:
+                    return DECLINED, buf, n, changed, inserted, rotary, turned, u_line
+                n = _copy(buf, n, data, gb, ub)
+                changed += 1
+            else:
+                n = _copy(buf, n, data, ua, ub)
+            pos = ub
         n = _copy(buf, n, data, pos, a)
         n = _copy(buf, n, scratch, 0, ns)
         pos = b

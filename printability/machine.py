@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from gcode.flavors import Flavor, RotaryAxis, flavor_named
 from printability.errors import FileFormatError, InputError, PrintabilityOSError
 from printability.options import FEED_POLICIES, FLAVORS, JOINT_KINDS, MACHINE_KINDS
 
@@ -46,9 +47,13 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["DEFAULT_TTR_STEP", "Joint", "Machine", "builtin_profiles", "parse_machine"]
+__all__ = ["DEFAULT_BED", "DEFAULT_TTR_STEP", "Joint", "Machine", "builtin_profiles",
+           "parse_machine"]
 
 DEFAULT_TTR_STEP = 2.0
+#: The bed of the built-in ``xy`` and ``ttr`` specs, (xmin, xmax, ymin, ymax) in mm: a
+#: common 220 mm × 220 mm bed with its origin at the front left corner.
+DEFAULT_BED = (0.0, 220.0, 0.0, 220.0)
 _DATA = Path(__file__).with_name("data") / "machines"
 
 
@@ -89,9 +94,18 @@ class Machine:
     joints, tool_offset, tool_angle
         The chain of a ``chain`` machine.
     bed
-        (xmin, xmax, ymin, ymax) of the reachable bed, mm, or None.
-    flavor, feed_policy
-        Options from :data:`printability.options.FLAVORS` and ``FEED_POLICIES``.
+        (xmin, xmax, ymin, ymax) of the reachable bed, mm. The built-in specs
+        (``xy``, ``ttr``) have :data:`DEFAULT_BED`; a profile without ``[bed]``
+        has none (its part keeps its own coordinates).
+    flavor
+        Name from :data:`printability.options.FLAVORS`, or None when the spec
+        does not say (post-processing then follows the file's own flavor
+        comment; see :meth:`firmware`).
+    feed_policy
+        From ``FEED_POLICIES``, or None: the flavor's (:meth:`feed_policy_for`).
+    rotary
+        The rotary axis's letter, limits, speed, acceleration and corner
+        velocity (:class:`gcode.flavors.RotaryAxis`), for ``ttr`` machines.
     filament_diameter
         mm.
     profile
@@ -110,10 +124,28 @@ class Machine:
     tool_offset: tuple[float, float] = (0.0, 0.0)
     tool_angle: float = 0.0
     bed: tuple[float, float, float, float] | None = None
-    flavor: str = "marlin"
-    feed_policy: str = "xy"
+    flavor: str | None = None
+    feed_policy: str | None = None
+    rotary: RotaryAxis | None = None
     filament_diameter: float = 1.75
     profile: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    def firmware(self, detected: str | None = None) -> Flavor:
+        """The firmware flavor: the machine's, else ``detected`` (a file's own ``;FLAVOR``
+        comment), else Marlin."""
+        return flavor_named(self.flavor or detected or "marlin")
+
+    def feed_policy_for(self, flavor: Flavor) -> str:
+        """The feed policy: the machine's when stated, else the flavor's."""
+        return self.feed_policy or flavor.feed_policy
+
+    @property
+    def rotary_axis(self) -> RotaryAxis:
+        """:attr:`rotary`, or the default axis with this machine's letter and limits."""
+        if self.rotary is not None:
+            return self.rotary
+        lo, hi = (self.angle_min, self.angle_max) if self.kind == "ttr" else (0.0, 0.0)
+        return RotaryAxis(letter=self.rotary_letter, min_angle=lo, max_angle=hi)
 
     @property
     def separable(self) -> bool:
@@ -245,6 +277,9 @@ def _from_profile(doc: Mapping[str, Any], where: str, spec: str) -> Machine:
         kw.update(angle_min=lo, angle_max=hi, angle_step=step)
     if "letter" in rot:
         kw["rotary_letter"] = _letter(where, rot["letter"])
+    if kind == "ttr":
+        kw["rotary"] = _rotary_axis(where, rot, kw.get("rotary_letter", "C"),
+                                    kw["angle_min"], kw["angle_max"])
     if kind == "chain":
         joints = doc.get("joints")
         if not isinstance(joints, list) or not joints:
@@ -280,11 +315,16 @@ def _from_profile(doc: Mapping[str, Any], where: str, spec: str) -> Machine:
     if bed is not None:
         bx = _pair(where, "[bed] x", bed.get("x"))
         by = _pair(where, "[bed] y", bed.get("y"))
+        if not (bx[0] < bx[1] and by[0] < by[1]):
+            raise FileFormatError(where, f"the bed expects x = [min, max] and y = [min, max] "
+                                  f"with min < max; found x = {list(bx)}, y = {list(by)}",
+                                  element="[bed]")
         kw["bed"] = (bx[0], bx[1], by[0], by[1])
     fw = doc.get("firmware", {})
     try:
         kw["flavor"] = FLAVORS.check(fw.get("flavor", "marlin"))
-        kw["feed_policy"] = FEED_POLICIES.check(fw.get("feed_policy", "xy"))
+        if "feed_policy" in fw:
+            kw["feed_policy"] = FEED_POLICIES.check(fw["feed_policy"])
     except InputError as exc:
         raise FileFormatError(where, str(exc), element="[firmware]") from None
     ex = doc.get("extruder", {})
@@ -293,6 +333,37 @@ def _from_profile(doc: Mapping[str, Any], where: str, spec: str) -> Machine:
         raise InputError(f"{where}: [extruder] filament_diameter must be positive")
     kw["filament_diameter"] = fd
     return Machine(name=name, kind=kind, spec=spec, profile=MappingProxyType(dict(doc)), **kw)
+
+
+_ROTARY_KEYS = {"letter", "min", "max", "step", "max_speed", "acceleration", "corner_velocity",
+                "stepper"}
+
+
+def _rotary_axis(where: str, rot: Mapping[str, Any], letter: str, lo: float,
+                 hi: float) -> RotaryAxis:
+    """The ``[rotary]`` table's axis: limits and what the firmware's planner needs."""
+    for key in rot:
+        if key not in _ROTARY_KEYS:
+            raise FileFormatError(where, f"unknown key {key!r}; expected one of: "
+                                  f"{', '.join(sorted(_ROTARY_KEYS))}", element="[rotary]")
+    d = RotaryAxis()
+    kw: dict[str, Any] = {}
+    for key, low, high, unit in (("max_speed", 1.0, 1e5, "°/s"),
+                                 ("acceleration", 1.0, 1e7, "°/s²"),
+                                 ("corner_velocity", 0.0, 1e5, "°/s")):
+        v = _num(where, f"[rotary] {key}", rot.get(key, getattr(d, key)))
+        if not (low <= v <= high):
+            raise FileFormatError(where, f"{key} expects a number of {unit} in [{low:g}, "
+                                  f"{high:g}]; found {v:g}", element="[rotary]")
+        kw[key] = v
+    stepper = rot.get("stepper", d.stepper)
+    if not isinstance(stepper, str) or not stepper or not stepper.replace("_", "").isalnum():
+        raise FileFormatError(where, "stepper expects the name of a Klipper [manual_stepper] "
+                              f"section (letters, digits, _); found {stepper!r}",
+                              element="[rotary]")
+    full = hi - lo >= 360.0 - 1e-9
+    return RotaryAxis(letter=letter, min_angle=-math.inf if full else lo,
+                      max_angle=math.inf if full else hi, stepper=stepper, **kw)
 
 
 def _letter(where: str, value: Any) -> str:
@@ -357,7 +428,7 @@ def parse_machine(spec: str | Machine) -> Machine:
     if kind == "xy":
         if params:
             raise InputError(f"machine spec {text!r}: an xy machine takes no parameters")
-        return Machine(name="xy", kind="xy", spec=text)
+        return Machine(name="xy", kind="xy", spec=text, bed=DEFAULT_BED)
     nums = {}
     for key in ("min", "max", "step"):
         if key in params:
@@ -370,5 +441,8 @@ def parse_machine(spec: str | Machine) -> Machine:
     step = nums.get("step", DEFAULT_TTR_STEP)
     _rotary_range(f"machine spec {text!r}", lo, hi, step)
     letter = _letter(f"machine spec {text!r}", params["letter"]) if "letter" in params else "C"
+    full = hi - lo >= 360.0 - 1e-9
     return Machine(name="ttr", kind="ttr", spec=text, angle_min=lo, angle_max=hi,
-                   angle_step=step, rotary_letter=letter)
+                   angle_step=step, rotary_letter=letter, bed=DEFAULT_BED,
+                   rotary=RotaryAxis(letter=letter, min_angle=-math.inf if full else lo,
+                                     max_angle=math.inf if full else hi))

@@ -127,12 +127,19 @@ JOINT_KINDS = _reg(
     revolute="rotation about the joint's origin, degrees",
 )
 
+# the flavors themselves (what each firmware does) are gcode.flavors' classes; this registry
+# holds their names for validation and help without importing the G-code package (the slicer
+# plug-in's client imports this module on every export); a test keeps the two in step
 FLAVORS = _reg(
     "G-code flavor",
-    marlin="Marlin 2.1 or newer (rotational axes: F is the XY speed)",
-    klipper="Klipper (F is the XY speed)",
-    reprap="RepRapFirmware 3 (F is the XY speed)",
-    generic="generic firmware that treats all axes as Euclidean",
+    marlin="Marlin 2.1 or newer with AXIS4_NAME 'C' and AXIS4_ROTATES (F is the XYZ speed; "
+    "degrees/min on a rotation-only move)",
+    klipper="Klipper with a [manual_stepper] registered as G-code axis C (F is the XYZ speed; "
+    "degrees/min on a rotation-only move; no G92 C)",
+    reprap="RepRapFirmware 3 with M584 C<driver> R1 S1 in config.g (F is the XYZ speed; "
+    "degrees/min on a rotation-only move)",
+    generic="generic RS274 firmware that treats every axis as Euclidean (degrees count as mm "
+    "in F)",
 )
 
 FEED_POLICIES = _reg(

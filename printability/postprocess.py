@@ -60,7 +60,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gcode import NON_PART_CATEGORIES, parse_gcode
+from gcode import MF_E_RELATIVE, NON_PART_CATEGORIES, parse_gcode
+from gcode.flavors import RotaryAxis
 from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
 from printability._arrays import take_rows
@@ -343,7 +344,10 @@ def postprocess_bytes(
         nozzle = parse_nozzle(f"circle:d={format_number(float(d), 4)}")
     else:
         nozzle = parse_nozzle(options.nozzle)
-    policy = FEED_POLICIES.check(options.feed_policy or machine.feed_policy)
+    g = parse_gcode(data, path=path)
+    # the machine's flavor, else the one the slicer wrote the file for
+    flavor = machine.firmware(g.flavor)
+    policy = FEED_POLICIES.check(options.feed_policy or machine.feed_policy_for(flavor))
     if policy == "inverse-time":
         raise InputError(
             f"{path}: feed policy inverse-time (G93) needs an F word on every move, so every "
@@ -355,7 +359,6 @@ def postprocess_bytes(
     fd = (options.filament_diameter or envs.get("filament_diameter")
           or _config_value(data, "filament_diameter") or machine.filament_diameter)
 
-    g = parse_gcode(data, path=path)
     moves = g.moves
     lines = g.lines
     n_layers = len(g.layers)
@@ -380,6 +383,7 @@ def postprocess_bytes(
                           angle_min=machine.angle_min if machine.kind == "ttr" else 0.0,
                           angle_max=machine.angle_max if machine.kind == "ttr" else 0.0,
                           unwind=options.unwind, feed_policy=policy,
+                          rotary_feed=machine.rotary_axis.rotation_feed,
                           filament_diameter=float(fd), angle_decimals=options.angle_decimals)
     if machine.kind == "ttr" and machine.full_turn and not options.unwind:
         # a full-turn axis without cables turns freely: no limits on the coordinate
@@ -475,8 +479,15 @@ def postprocess_bytes(
     if narrow_beads:
         notes.append("round nozzle no larger than the slicer's: it lays the slicer's own beads, "
                      "every move is kept as it is")
+    axis = machine.rotary_axis
+    if turns:
+        notes.append(flavor.rotary_setup_note(axis))
     head = header_lines(version=__version__, nozzle=nozzle.spec, machine=machine.spec,
-                        options=wopts, mode="postprocessed", summary=summary, notes=notes)
+                        options=wopts, mode="postprocessed", summary=summary, notes=notes,
+                        flavor=flavor.name, e_mode=_e_mode(moves))
+    if turns:
+        # the axis declared (Klipper registers it) and zeroed before any rotary word
+        head += flavor.declare_rotary(RotaryAxis(**{**axis.__dict__, "letter": letter}))
     first_cmd = first_command_line(lines)
     eol = eol_of(g.line(first_cmd)) if len(lines) else b"\n"
     block = b"".join(h.encode("utf-8") + eol for h in head)
@@ -492,6 +503,14 @@ def postprocess_bytes(
         notes=tuple(notes),
     )
     return result_bytes, res
+
+
+def _e_mode(moves: np.ndarray) -> str:
+    """How the file's extruding moves count E: ``relative``, ``absolute`` or ``mixed``."""
+    rel = (moves["flags"][moves["e"] > 0] & MF_E_RELATIVE) != 0
+    if rel.all():
+        return "relative"
+    return "absolute" if not rel.any() else "mixed"
 
 
 def _layer_reports(g, layers, areas, idx, counts, lay_of, plan, seg_len, widths

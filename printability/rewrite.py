@@ -143,7 +143,8 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
         np.frombuffer(wopts.letter.encode("ascii"), np.uint8), int(wopts.angle_decimals),
         int(wopts.xy_decimals), 5, float(period), float(lo), float(hi),
         bool(math.isinf(lo) and math.isinf(hi) and lo < 0 < hi),
-        wopts.feed_policy == "xy", bool(wopts.unwind), bool(turns), len(g.layers))
+        wopts.feed_policy == "xy", bool(wopts.unwind), bool(turns), len(g.layers),
+        np.ascontiguousarray(moves["feed"], float), float(wopts.rotary_feed))
     if status != OK:
         return rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold,
                                  seg_width_laid, seg_pieces, widths, heights, wopts, turns,
@@ -186,7 +187,7 @@ class _Events:
         return out
 
 
-_NONE, _TRAVEL, _RESET, _WORK = 0, 1, 2, 3
+_NONE, _TRAVEL, _RESET, _WORK, _UNRETRACT = 0, 1, 2, 3, 4
 
 
 def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widths, heights,
@@ -231,9 +232,13 @@ def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widt
         is_travel = ((moves["e"] <= 0) & (moves["kind"] <= 1)
                      & ((moves["x1"] != moves["x0"]) | (moves["y1"] != moves["y0"])))
         extruding = moves["e"] > 0
+        # E alone, forwards: the un-retract before a path, which a turn must precede
+        unretract = (extruding & (moves["kind"] <= 1) & (moves["x1"] == moves["x0"])
+                     & (moves["y1"] == moves["y0"]) & ~(moves["z1"] != moves["z0"]))
     effect = np.full(n_moves, _NONE, dtype=np.int8)
     effect[extruding] = _RESET
     if turns:
+        effect[unretract & ~has_seg] = _UNRETRACT
         effect[has_seg] = _RESET
         if fold:
             effect[is_travel] = _TRAVEL
@@ -348,26 +353,54 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
             t = angle_texts[c] = format_number(c, d_ang)
         return t
 
-    def turn_to(phi: float, c: float, c_text: str, eol: bytes, layer: int) -> None:
-        # a turn before the move: folded into the travel before it, else a move of its own
-        nonlocal cur, cur_text, last_travel_chunk
+    rot_feed = float(wopts.rotary_feed)
+    rot_f = ("F" + format_number(rot_feed, 3)).encode() if rot_feed > 0 else b""
+
+    def before_unretract(word: str) -> None:
+        # the rotation-only move before the un-retract: nothing is deposited at the old
+        # orientation; the un-retract restores the feed it had
+        nonlocal u_slot
+        u_raw = chunks[u_slot + 1]
+        with_f = bool(rot_f) and math.isfinite(m_feed[u_move])
+        chunks[u_slot] = (b"G1 " + word.encode() + (b" " + rot_f if with_f else b"")
+                          + eol_of(u_raw))
+        if with_f and not _has_feed(u_raw):
+            chunks[u_slot + 1] = edit_line(u_raw, add=[f_word(m_feed[u_move])])
+            out.changed += 1
+        out.inserted += 1
+        u_slot = None
+
+    def turn_to(phi: float, c: float, c_text: str, eol: bytes, layer: int,
+                feed: float) -> bool:
+        # A turn before the move: folded into the travel before it, else a move of its own
+        # before the un-retract before it, else one just before the move. A rotation-only
+        # move carries its own F (degrees/min; it would inherit the XY feed), when the feed
+        # to restore after it is known; True when the move must restore its feed.
+        nonlocal cur, cur_text, last_travel_chunk, u_slot
         if c_text == cur_text:
-            return
+            return False
         word = letter + c_text
+        need_f = False
         if fold and last_travel_chunk is not None:
             if wopts.unwind:
                 c = coord_for(phi, unwind=True)
                 c_text = format_number(c, d_ang)
                 word = letter + c_text
             chunks[last_travel_chunk] = edit_line(chunks[last_travel_chunk], add=[word])
+        elif u_slot is not None:
+            before_unretract(word)
         else:
-            chunks.append(b"G1 " + word.encode() + eol)
+            with_f = bool(rot_f) and math.isfinite(feed)
+            chunks.append(b"G1 " + word.encode() + (b" " + rot_f if with_f else b"") + eol)
+            need_f = with_f
             out.inserted += 1
+        u_slot = None
         out.rotary_words += 1
         turned[layer] = turned.get(layer, 0) + 1
         cur = c
         cur_text = c_text
         last_travel_chunk = None
+        return need_f
 
     def words(raw: bytes, e_rel: bool, e_move: float):
         # read only where a word is needed: most moves only gain a rotary word
@@ -398,16 +431,26 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
         chunks.append(data[starts[li]:starts[li + 1]])
     pos = starts[first_cmd]  # data before pos is in the chunks
     pending: int | None = None  # the last travel line since the last rewritten move
+    unret: tuple[int, int] | None = None  # (line, move) of an un-retract since that travel
+    u_slot: int | None = None  # the chunk before the un-retract's, where a turn may go
+    u_move = -1
+    m_feed = moves["feed"].tolist() if rot_f else []
 
     for li, mi, code in zip(ev_line, ev_move, ev_code, strict=True):
         # A turn may be folded into the last travel before the move when no extrusion
         # came in between; every rewritten move ends that chance.
         if code == _TRAVEL:
             pending = li
+            unret = None
+            continue
+        if code == _UNRETRACT:
+            unret = (li, mi)
             continue
         if code == _RESET:
             pending = None
+            unret = None
             continue
+        u_slot = None
         if pending is not None:
             chunks.append(data[pos:starts[pending]])
             chunks.append(data[starts[pending]:starts[pending + 1]])
@@ -416,6 +459,14 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
             pending = None
         else:
             last_travel_chunk = None
+            if unret is not None:
+                u_line, u_move = unret
+                chunks.append(data[pos:starts[u_line]])
+                u_slot = len(chunks)
+                chunks.append(b"")  # a turn goes here, before the un-retract
+                chunks.append(data[starts[u_line]:starts[u_line + 1]])
+                pos = starts[u_line + 1]
+        unret = None
         chunks.append(data[pos:starts[li]])
         pos = starts[li + 1]
         raw = data[starts[li]:pos]
@@ -427,9 +478,11 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
         e_rel = bool(m_flags[mi] & 1)
         e_move = m_e[mi]
         simple = (a1 - a0 == 1 and a0 not in seg_pieces and m_kind[mi] <= 1)
+        feed = m_feed[mi] if rot_f else math.nan
         if simple:
             phi = s_angle[a0]
             add: list[str] = []
+            need_f = False
             if turns and math.isfinite(phi):
                 c = coord_for(phi)
                 c_text = angle_text(c)
@@ -442,7 +495,9 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
                         cur = c
                         cur_text = c_text
                 else:
-                    turn_to(phi, c, c_text, eol, layer)
+                    need_f = turn_to(phi, c, c_text, eol, layer, feed)
+            if need_f and not _has_feed(raw):
+                add.append(f_word(feed))
             scale = s_scale[a0]
             replace = {}
             if scale != 1.0:
@@ -483,6 +538,7 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
         px, py = m_x0[mi], m_y0[mi]
         comment = b" ; printability: was " + raw.rstrip(b"\r\n").strip()[:60]
         lines_new: list[bytes] = []
+        need_f = False
         # A move that also climbs (spiral vase) climbs along its new lines too, by path
         # length, instead of stepping Z at the end.
         z0, z1 = m_z0[mi], m_z1[mi]
@@ -517,7 +573,23 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
                         c_word = (letter + c_text).encode()
                         if not (s_fold[s] and not in_pieces
                                 and abs(c - cur) <= s_turn[s] + 1e-6):
-                            lines_new.append(b"G1 " + c_word)
+                            if fold and last_travel_chunk is not None and not lines_new:
+                                # the first thing this move does: folded into the travel
+                                if wopts.unwind:
+                                    c = coord_for(phi, unwind=True)
+                                    c_text = format_number(c, d_ang)
+                                    c_word = (letter + c_text).encode()
+                                chunks[last_travel_chunk] = edit_line(
+                                    chunks[last_travel_chunk], add=[c_word.decode()])
+                                last_travel_chunk = None
+                            elif u_slot is not None and not lines_new:
+                                # the first thing this move does: before the un-retract
+                                before_unretract(c_word.decode())
+                            else:
+                                with_f = bool(rot_f) and math.isfinite(feed)
+                                lines_new.append(b"G1 " + c_word
+                                                 + (b" " + rot_f if with_f else b""))
+                                need_f = with_f
                             c_word = b""
                         out.rotary_words += 1
                         turned[layer] = turned.get(layer, 0) + 1
@@ -535,6 +607,9 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
                     ws.append(c_word)
                 if first and f_text is not None:
                     ws.append(f_text.encode())
+                elif need_f:
+                    ws.append(f_word(feed).encode())
+                need_f = False
                 first = False
                 lines_new.append(b" ".join(ws))
                 px, py = qx1, qy1
@@ -555,6 +630,22 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
         last_travel_chunk = None
     chunks.append(data[pos:])
     return out, turned
+
+
+def f_word(feed: float) -> str:
+    """The F word restoring ``feed`` (mm/min) after a rotation-only move."""
+    return "F" + format_number(feed, 3)
+
+
+def _has_feed(raw: bytes) -> bool:
+    """True when the line has an F word."""
+    from gcode.line import parse_line
+    from gcode.writer import simple_move_words
+
+    ws = simple_move_words(raw)
+    if ws is not None:
+        return any(w[:1] == b"F" for w in ws)
+    return parse_line(raw).word("F") is not None
 
 
 def _piece_scales(seg, p_seg, phi, widths, h_seg, turns: bool, e_policy: str, nozzle: Nozzle,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import shapely
+import shapely.affinity
 from shapely.geometry import Polygon
 
 from gcode import parse_gcode
@@ -17,6 +19,7 @@ from printability.errors import InputError
 from printability.generate import GenerateOptions, generate_gcode
 from printability.geometry import as_region
 from printability.layers import Layer, LayerStack
+from printability.machine import parse_machine
 from printability.mmc import compute_mmc
 from printability.motion.check import check_deposition, extrusion_chords
 from printability.nozzle import parse_nozzle
@@ -26,6 +29,9 @@ ELLIPSE = "ellipse:major=0.8,minor=0.3"
 GOLDEN = Path(__file__).with_name("golden")
 ROOT = Path(__file__).resolve().parents[2]
 TTR_PROFILE = ROOT / "printability" / "data" / "machines" / "ttr.toml"
+# the parts keep their own coordinates (a machine without a bed), so the checks compare the
+# G-code with the layers as they are
+NO_BED = dataclasses.replace(parse_machine("ttr"), bed=None)
 
 
 def _stack(*regions, height=0.2) -> LayerStack:
@@ -73,7 +79,7 @@ def _check(stack: LayerStack, nozzle: str, text: str, min_cover: float) -> None:
 def test_generate_calibration_cube(shared_data):
     layers = load_layers(shared_data / "stl" / "CalibrationCube.stl", layer_height=0.2)
     stack = LayerStack(tuple(layers.layers[::40]), source=layers.source)
-    text, res = generate_gcode(stack, ELLIPSE, "ttr", options=GenerateOptions(center=False))
+    text, res = generate_gcode(stack, ELLIPSE, NO_BED, options=GenerateOptions(center=False))
     assert res.rotations > 0 and res.extruded_length > 0
     _check(stack, ELLIPSE, text, 0.95)
 
@@ -84,7 +90,7 @@ def test_generate_calibration_cube(shared_data):
 ])
 def test_generate_real_slices(shared_data, name):
     stack = load_layers(shared_data / "slices" / name)
-    text, _ = generate_gcode(stack, ELLIPSE, "ttr", options=GenerateOptions(center=False))
+    text, _ = generate_gcode(stack, ELLIPSE, NO_BED, options=GenerateOptions(center=False))
     _check(stack, ELLIPSE, text, 0.90)
 
 
@@ -161,3 +167,60 @@ def test_limited_axes_keep_limits_and_mmc(machine):
         assert c.min() >= lo - 1e-9 and c.max() <= hi + 1e-9
     reports = check_deposition(extrusion_chords(g), [stack[0].region], parse_nozzle(ELLIPSE))
     assert reports[0].max_outside <= 1e-3 + 2e-4
+
+
+def _extrusion_bounds(text: str) -> tuple[float, float, float, float]:
+    ch = extrusion_chords(parse_gcode(text.encode()))
+    xs = np.concatenate([ch["x0"], ch["x1"]])
+    ys = np.concatenate([ch["y0"], ch["y1"]])
+    return xs.min(), xs.max(), ys.min(), ys.max()
+
+
+@pytest.mark.parametrize("machine", ["ttr", "xy", "ttr:min=-90,max=90", str(TTR_PROFILE)])
+def test_a_part_around_the_origin_lands_in_the_middle_of_the_bed(machine):
+    # an STL is often modelled around the origin: generate used to print it at x = -9.85
+    part = shapely.affinity.translate(_l_shape(), -6.0, -4.0)
+    text, _ = generate_gcode(_stack(part), ELLIPSE, machine)
+    bx0, bx1, by0, by1 = parse_machine(machine).bed
+    x0, x1, y0, y1 = _extrusion_bounds(text)
+    assert bx0 < x0 < x1 < bx1 and by0 < y0 < y1 < by1
+    assert (x0 + x1) / 2 == pytest.approx((bx0 + bx1) / 2, abs=0.5)
+
+
+def test_a_part_larger_than_the_bed_is_a_clear_error():
+    big = shapely.box(0, 0, 300, 10)
+    with pytest.raises(InputError, match=r"part \(300\.0 mm × 10\.0 mm\) is larger than the bed"):
+        generate_gcode(_stack(big), ELLIPSE, "ttr")
+
+
+def test_a_part_off_the_bed_without_centring_is_a_clear_error():
+    part = shapely.affinity.translate(_l_shape(), -20.0, 0.0)
+    with pytest.raises(InputError, match="off the bed"):
+        generate_gcode(_stack(part), ELLIPSE, "ttr", options=GenerateOptions(center=False))
+
+
+def test_klipper_flavor_registers_the_axis_and_writes_no_g92_c(tmp_path):
+    prof = tmp_path / "k.toml"
+    prof.write_text(TTR_PROFILE.read_text().replace('flavor = "marlin"', 'flavor = "klipper"'))
+    text, res = generate_gcode(_stack(_l_shape()), ELLIPSE, str(prof))
+    lines = text.splitlines()
+    assert res.rotations > 0
+    assert not any(ln.startswith("G92 C") for ln in lines)
+    reg = next(i for i, ln in enumerate(lines) if "GCODE_AXIS=C" in ln)
+    first_c = next(i for i, ln in enumerate(lines) if ln.startswith("G1") and " C" in ln)
+    assert reg < first_c
+    assert "LIMIT_VELOCITY=360" in lines[reg]
+
+
+def test_rotation_only_moves_carry_their_own_feed_and_the_next_move_restores_it():
+    text, _ = generate_gcode(_stack(_l_shape()), ELLIPSE, "ttr")
+    lines = [ln.split(";")[0].split() for ln in text.splitlines()]
+    seen = 0
+    for i, w in enumerate(lines):
+        if w[:1] == ["G1"] and len(w) >= 2 and w[1].startswith("C") and \
+                not any(x[0] in "XYZE" for x in w[1:]):
+            assert any(x.startswith("F") for x in w), text.splitlines()[i]
+            nxt = next(v for v in lines[i + 1:] if v[:1] in (["G1"], ["G0"]))
+            assert any(x.startswith("F") for x in nxt)
+            seen += 1
+    assert seen > 0

@@ -2,7 +2,7 @@
 ; printability: nozzle = circle:d=0.4
 ; printability: machine = xy
 ; printability: rotary axis = none (round nozzle)
-; printability: feed policy = xy, E = absolute, bead model = rounded, filament = 1.75 mm
+; printability: flavor = marlin, feed policy = xy, E = absolute, bead model = rounded, filament = 1.75 mm
 ; printability: layers = 2, target area = 102.000 mm2, lost area = 0.000 mm2 (0.00 %)
 ; printability: layer z, target mm2, lost mm2, dropped moves, dropped mm, split moves
 ; printability: layer 0.200 51.0000 0.0000 0 0.000 0
