@@ -55,6 +55,7 @@ __all__ = [
     "GenericFlavor",
     "KlipperFlavor",
     "MarlinFlavor",
+    "PlannerLimits",
     "RepRapFlavor",
     "RotaryAxis",
     "flavor_named",
@@ -113,6 +114,66 @@ class RotaryAxis:
     def rotation_feed(self) -> float:
         """F of a rotation-only move, degrees per minute."""
         return 60.0 * self.max_speed
+
+
+@dataclass(frozen=True)
+class PlannerLimits:
+    """The firmware's motion limits (Klipper's ``[printer]``, ``[extruder]``, ``gcode_arcs``).
+
+    Attributes
+    ----------
+    max_velocity, max_accel
+        mm/s, mm/s² (the file's M204 / SET_VELOCITY_LIMIT change the acceleration as it goes).
+    square_corner_velocity
+        mm/s; the junction deviation is ``scv² (√2 − 1) / max_accel``.
+    minimum_cruise_ratio
+        Share of a move's length kept at cruise speed when it can (Klipper ≥ 0.12).
+    max_z_velocity, max_z_accel
+        mm/s, mm/s².
+    nozzle_diameter, filament_diameter
+        mm: the extruder's default limits (4·d² of cross-section).
+    extrude_only_velocity, extrude_only_accel
+        mm/s, mm/s² of filament for E-only and retraction moves; None: Klipper's defaults.
+    extruder_corner_velocity
+        mm/s of filament the extruder's speed may jump at a junction.
+    arc_resolution
+        mm per arc segment.
+    """
+
+    max_velocity: float = 300.0
+    max_accel: float = 3000.0
+    square_corner_velocity: float = 5.0
+    minimum_cruise_ratio: float = 0.5
+    max_z_velocity: float = 15.0
+    max_z_accel: float = 300.0
+    nozzle_diameter: float = 0.4
+    filament_diameter: float = 1.75
+    extrude_only_velocity: float | None = None
+    extrude_only_accel: float | None = None
+    extruder_corner_velocity: float = 1.0
+    arc_resolution: float = 1.0
+
+    def __post_init__(self) -> None:
+        for key, value in self.__dict__.items():
+            if value is None:
+                continue
+            if not (math.isfinite(value) and value >= 0) or (
+                    value == 0 and key not in ("minimum_cruise_ratio",
+                                               "extruder_corner_velocity",
+                                               "square_corner_velocity")):
+                raise ValueError(f"planner limit {key} must be a positive finite number; "
+                                 f"got {value!r}")
+        if self.minimum_cruise_ratio >= 1:
+            raise ValueError("planner limit minimum_cruise_ratio must be below 1; got "
+                             f"{self.minimum_cruise_ratio!r}")
+
+    def extruder_limits(self) -> tuple[float, float]:
+        """(velocity, accel) of extrude-only moves, as Klipper defaults them."""
+        ratio = 4.0 * self.nozzle_diameter ** 2 / (math.pi * (self.filament_diameter / 2) ** 2)
+        v = self.extrude_only_velocity
+        a = self.extrude_only_accel
+        return (self.max_velocity * ratio if v is None else v,
+                self.max_accel * ratio if a is None else a)
 
 
 _START = ("M140 S{first_layer_bed}", "M104 S{first_layer_nozzle}", "G28",

@@ -25,6 +25,7 @@ __all__ = ["KERNEL_MODULES", "check"]
 KERNEL_MODULES = (
     "gcode/_lexer.py",
     "gcode/_machine.py",
+    "gcode/printtime.py",
     "printability/_emit_kernel.py",
     "printability/_rewrite_kernel.py",
     "printability/mmc/_containment.py",

@@ -37,7 +37,9 @@ import numpy as np
 import shapely
 import shapely.affinity
 
+from gcode import parse_gcode
 from gcode.flavors import RotaryAxis
+from gcode.printtime import estimate_print_time, format_duration
 from gcode.writer import Emitter, WriterOptions, header_lines
 from printability import __version__
 from printability._emit_kernel import emit, group_pieces
@@ -109,6 +111,7 @@ class GenerateResult:
     rotations: int
     elapsed: float
     summary: tuple[dict[str, float], ...]
+    print_time: float | None = None  # s on the firmware's planner (gcode.printtime)
 
 
 def _profile(machine: Machine, table: str) -> Mapping[str, Any]:
@@ -292,13 +295,19 @@ def generate_gcode(
              "lost area = length no orientation can print x wall width"]
     if turns:
         notes.append(flavor.rotary_setup_note(mach.rotary_axis))
+    body = em.text()
+    t = estimate_print_time(parse_gcode(body.encode()), limits=mach.planner,
+                            rotary=RotaryAxis(**{**mach.rotary_axis.__dict__,
+                                                 "letter": wopts.letter}))
+    notes.append(f"estimated print time on the firmware's planner (Klipper's look-ahead, the "
+                 f"machine's [planner] limits): {format_duration(t.total)}")
     head = header_lines(version=__version__, nozzle=noz.spec, machine=mach.spec, options=wopts,
                         mode="generated", summary=summary, notes=notes, flavor=flavor.name)
-    text = "".join(ln + "\n" for ln in head) + em.text()
+    text = "".join(ln + "\n" for ln in head) + body
     res = GenerateResult(path=None, layers=len(layers), lines=text.count("\n"),
                          extruded_length=extruded, dropped_length=dropped,
                          rotations=em.rotations, elapsed=time.perf_counter() - t_start,
-                         summary=tuple(summary))
+                         summary=tuple(summary), print_time=t.total)
     return text, res
 
 

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from gcode.flavors import Flavor, RotaryAxis, flavor_named
+from gcode.flavors import Flavor, PlannerLimits, RotaryAxis, flavor_named
 from printability.errors import FileFormatError, InputError, PrintabilityOSError
 from printability.options import FEED_POLICIES, FLAVORS, JOINT_KINDS, MACHINE_KINDS
 
@@ -106,6 +106,9 @@ class Machine:
     rotary
         The rotary axis's letter, limits, speed, acceleration and corner
         velocity (:class:`gcode.flavors.RotaryAxis`), for ``ttr`` machines.
+    planner
+        The firmware's motion limits (``[planner]``; Klipper's defaults when
+        absent) for the print-time estimate (:mod:`gcode.printtime`).
     filament_diameter
         mm.
     profile
@@ -127,6 +130,7 @@ class Machine:
     flavor: str | None = None
     feed_policy: str | None = None
     rotary: RotaryAxis | None = None
+    planner: PlannerLimits = field(default_factory=PlannerLimits)
     filament_diameter: float = 1.75
     profile: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
@@ -256,7 +260,7 @@ def _rotary_range(where: str, lo: float, hi: float, step: float) -> None:
 
 def _from_profile(doc: Mapping[str, Any], where: str, spec: str) -> Machine:
     known = {"machine", "rotary", "joints", "tool", "bed", "firmware", "extruder",
-             "temperatures", "retraction", "gcode", "speeds"}
+             "temperatures", "retraction", "gcode", "speeds", "planner"}
     for key in doc:
         if key not in known:
             raise FileFormatError(where, f"unknown table [{key}]; expected one of: "
@@ -332,6 +336,7 @@ def _from_profile(doc: Mapping[str, Any], where: str, spec: str) -> Machine:
     if fd <= 0:
         raise InputError(f"{where}: [extruder] filament_diameter must be positive")
     kw["filament_diameter"] = fd
+    kw["planner"] = _planner(where, doc.get("planner", {}), fd)
     return Machine(name=name, kind=kind, spec=spec, profile=MappingProxyType(dict(doc)), **kw)
 
 
@@ -364,6 +369,23 @@ def _rotary_axis(where: str, rot: Mapping[str, Any], letter: str, lo: float,
     full = hi - lo >= 360.0 - 1e-9
     return RotaryAxis(letter=letter, min_angle=-math.inf if full else lo,
                       max_angle=math.inf if full else hi, stepper=stepper, **kw)
+
+
+def _planner(where: str, table: Any, filament_diameter: float) -> PlannerLimits:
+    """The ``[planner]`` table: the firmware's motion limits (mm, s)."""
+    if not isinstance(table, Mapping):
+        raise FileFormatError(where, "expected a table of motion limits", element="[planner]")
+    names = [k for k in PlannerLimits.__dataclass_fields__ if k != "filament_diameter"]
+    kw: dict[str, Any] = {"filament_diameter": filament_diameter}
+    for key, value in table.items():
+        if key not in names:
+            raise FileFormatError(where, f"unknown key {key!r}; expected one of: "
+                                  f"{', '.join(names)}", element="[planner]")
+        kw[key] = _num(where, f"[planner] {key}", value)
+    try:
+        return PlannerLimits(**kw)
+    except ValueError as exc:
+        raise FileFormatError(where, str(exc), element="[planner]") from None
 
 
 def _letter(where: str, value: Any) -> str:

@@ -62,6 +62,7 @@ import numpy as np
 
 from gcode import MF_E_RELATIVE, NON_PART_CATEGORIES, parse_gcode
 from gcode.flavors import RotaryAxis
+from gcode.printtime import PrintTime, estimate_print_time, format_duration
 from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
 from printability._arrays import take_rows
@@ -169,6 +170,9 @@ class PostprocessResult:
     path: str
     output: str
     already_processed: bool
+    # print_time_in / print_time_out: seconds Klipper's planner takes for the slicer's file
+    # and for the rewritten one with the machine's limits (gcode.printtime), None when not
+    # estimated
     lines_in: int
     lines_out: int
     changed_lines: int
@@ -179,6 +183,8 @@ class PostprocessResult:
     nozzle: str
     machine: str
     notes: tuple[str, ...] = ()
+    print_time_in: float | None = None
+    print_time_out: float | None = None
 
     @property
     def dropped_moves(self) -> int:
@@ -479,15 +485,22 @@ def postprocess_bytes(
     if narrow_beads:
         notes.append("round nozzle no larger than the slicer's: it lays the slicer's own beads, "
                      "every move is kept as it is")
-    axis = machine.rotary_axis
+    axis = RotaryAxis(**{**machine.rotary_axis.__dict__, "letter": letter})
     if turns:
         notes.append(flavor.rotary_setup_note(axis))
+    # the print time on the firmware's planner, before and after (the body has no header
+    # yet; comments take no time)
+    t_in = estimate_print_time(g, limits=machine.planner, rotary=axis)
+    t_out = estimate_print_time(parse_gcode(b"".join(out.chunks), path=path),
+                                limits=machine.planner, rotary=axis) if out.rotary_words \
+        or out.changed else t_in
+    notes.append(print_time_note(t_in.total, t_out))
     head = header_lines(version=__version__, nozzle=nozzle.spec, machine=machine.spec,
                         options=wopts, mode="postprocessed", summary=summary, notes=notes,
                         flavor=flavor.name, e_mode=_e_mode(moves))
     if turns:
         # the axis declared (Klipper registers it) and zeroed before any rotary word
-        head += flavor.declare_rotary(RotaryAxis(**{**axis.__dict__, "letter": letter}))
+        head += flavor.declare_rotary(axis)
     first_cmd = first_command_line(lines)
     eol = eol_of(g.line(first_cmd)) if len(lines) else b"\n"
     block = b"".join(h.encode("utf-8") + eol for h in head)
@@ -500,9 +513,22 @@ def postprocess_bytes(
         lines_out=len(lines) + out.inserted + len(head), changed_lines=out.changed,
         inserted_lines=out.inserted + len(head), rotary_words=out.rotary_words,
         layers=tuple(reports), elapsed=elapsed, nozzle=nozzle.spec, machine=machine.spec,
-        notes=tuple(notes),
+        notes=tuple(notes), print_time_in=t_in.total, print_time_out=t_out.total,
     )
     return result_bytes, res
+
+
+def print_time_note(t_in: float, out: PrintTime) -> str:
+    """One line on the print time before and after, and what the turns cost."""
+    text = (f"estimated print time on the firmware's planner (Klipper's look-ahead, the "
+            f"machine's [planner] limits): slicer's file {format_duration(t_in)}, this file "
+            f"{format_duration(out.total)}")
+    if t_in > 0:
+        text += f" ({out.total / t_in:.2f}x)"
+    if out.rotation_only:
+        text += (f"; {out.rotation_only} rotation-only moves take "
+                 f"{format_duration(out.rotation_only_time)}, each a full stop")
+    return text
 
 
 def _e_mode(moves: np.ndarray) -> str:

@@ -53,6 +53,11 @@ def generate_command(
     typer.echo(f"{res.path}: {res.layers} layers, {res.lines} lines, "
                f"{res.extruded_length:.1f} mm extruded, {res.dropped_length:.2f} mm the nozzle "
                f"cannot print, {res.rotations} turns; {res.elapsed:.2f} s")
+    if res.print_time is not None:
+        from gcode.printtime import format_duration
+
+        typer.echo(f"  print time on the firmware's planner (estimated): "
+                   f"{format_duration(res.print_time)}")
 
 
 def register(app: typer.Typer) -> None:

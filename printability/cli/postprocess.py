@@ -84,6 +84,13 @@ def postprocess_command(
         f"{res.split_moves} moves shortened and {res.dropped_moves} dropped "
         f"({res.dropped_length:.2f} mm not printed); {res.elapsed:.2f} s"
     )
+    if res.print_time_in and res.print_time_out is not None:
+        from gcode.printtime import format_duration
+
+        typer.echo(f"  print time on the firmware's planner (estimated): "
+                   f"{format_duration(res.print_time_in)} as sliced, "
+                   f"{format_duration(res.print_time_out)} rewritten "
+                   f"({res.print_time_out / res.print_time_in:.2f}x)")
     lossy = [r for r in res.layers if r.dropped_moves or r.split_moves]
     if lossy:
         worst = max(lossy, key=lambda r: r.dropped_length)
