@@ -112,7 +112,7 @@ class CommandsMixin:
             m.set_position(cmd)
             return
         if code in ("G93", "G94"):
-            if code == "G93" and m.machine.feed_policy != "inverse-time":
+            if code == "G93" and m.feed_policy != "inverse-time":
                 self._unknown(cmd)
             else:
                 m.inverse_time = code == "G93"
@@ -243,5 +243,5 @@ class CommandsMixin:
             hi = "none" if mc.full_turn else f"{mc.angle_max:g}"
             lines.append(f"Cap:ROTARY_AXIS:{m.letter}")
             lines.append(f"echo:Rotary axis {m.letter} (deg) min:{lo} max:{hi} "
-                         f"feed_policy:{mc.feed_policy}")
+                         f"feed_policy:{m.feed_policy}")
         return lines

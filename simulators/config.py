@@ -173,6 +173,10 @@ def firmware_profile(name: str = "marlin", *, machine: Machine | None = None,
     key = FIRMWARE_PROFILES.check(name)
     kw = dict(_BUILTIN[key])
     if machine is not None:
+        if machine.rotary is not None:
+            # the axis the G-code is planned for ([rotary]), unless [firmware] says otherwise
+            kw["max_feed_rotary"] = machine.rotary.max_speed
+            kw["rotary_acceleration"] = machine.rotary.acceleration
         fw = machine.profile.get("firmware", {}) if machine.profile else {}
         for k, v in fw.items():
             if k in ("flavor", "feed_policy"):

@@ -119,6 +119,8 @@ class MotionState:
 
     def __init__(self, machine: Machine, fw: FirmwareProfile) -> None:
         self.machine = machine
+        # what F means on a move that turns: the machine's policy, else its flavor's
+        self.feed_policy = machine.feed_policy_for(machine.firmware())
         self.fw = fw
         self.letter = machine.rotary_letter if machine.has_rotary else None
         bed = machine.bed or (-math.inf, math.inf, -math.inf, math.inf)
@@ -194,7 +196,7 @@ class MotionState:
         dc, de = abs(float(d[3])), abs(e1 - e0)
         direction = None
         feed = self.feed * self.feed_percent / 100.0
-        if self.machine.feed_policy == "euclidean":
+        if self.feed_policy == "euclidean":
             length = math.sqrt(lin * lin + dc * dc)
             speed, accel = min(feed, self.max_feed_xy), self.acceleration
             if lin > 0:
