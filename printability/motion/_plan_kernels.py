@@ -14,8 +14,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["chain_nearest", "merge_pieces", "piece_losses", "points_along", "smooth_chain",
-           "split_intervals", "width_picks"]
+__all__ = ["chain_nearest", "chain_viterbi", "merge_pieces", "piece_losses", "points_along",
+           "smooth_chain", "split_intervals", "width_picks"]
 
 
 @numba.njit(cache=True)
@@ -263,4 +263,82 @@ def points_along(a, ba, idx, t):  # pragma: no cover
         m = idx[i]
         out[i, 0] = a[m, 0] + t[i] * ba[m, 0]
         out[i, 1] = a[m, 1] + t[i] * ba[m, 1]
+    return out
+
+
+@numba.njit(cache=True)
+def chain_viterbi(cand_in, cand_out, node_cost, folds, params):  # pragma: no cover
+    """Per move, the candidate orientation of the path turning least (a Viterbi pass).
+
+    ``cand_in``, ``cand_out`` (n, k): each move's admissible candidates (NaN: none),
+    the orientation it starts and ends at (the same but for a split move, whose
+    pieces are fixed); ``node_cost`` (n, k) what laying each costs (its width error,
+    in degrees of turn); ``folds`` (n, k, k) per move 0 where it does not start where
+    the previous ended (a travel between), else 1, or 2 where the turn from the
+    previous move's candidate j to its candidate c can be made during the move (3:
+    may be, not tested yet; counted as 2).
+    ``params`` = (period, stop, travel, reverse): a turn between chained moves costs
+    its size (modulo the period), plus ``stop`` unless it is made during the move (the
+    nozzle then turns standing still: a full stop of the XY motion), plus ``reverse``
+    when it turns the other way than the last turn of the path; across a travel it
+    costs ``travel`` times its size. A state is a candidate and the sense of the last
+    turn (0: clockwise or none yet, 1: counter-clockwise). A move without candidates
+    (dropped) breaks the path. Returns the chosen column per move (-1: none), the first
+    of equals.
+    """
+    per = params[0]
+    stop = params[1]
+    travel = params[2]
+    reverse = params[3]
+    n, k = cand_in.shape
+    acc = np.full((n, k, 2), np.inf)
+    back = np.full((n, k, 2), -1, np.int64)
+    prev_ok = False
+    for i in range(n):
+        any_ok = False
+        for c in range(k):
+            y = cand_in[i, c]
+            if y != y:
+                continue
+            any_ok = True
+            if not prev_ok:
+                acc[i, c, 0] = node_cost[i, c]
+                acc[i, c, 1] = node_cost[i, c]
+                continue
+            for j in range(k):
+                for s in range(2):
+                    a = acc[i - 1, j, s]
+                    if a == np.inf:
+                        continue
+                    d = (y - cand_out[i - 1, j] + 0.5 * per) % per - 0.5 * per
+                    ad = abs(d)
+                    f = folds[i, j, c]
+                    s2 = s if ad <= 1e-9 else (1 if d > 0.0 else 0)
+                    if f:
+                        t = ad + (stop if ad > 1e-9 and f == 1 else 0.0)
+                        if s2 != s:
+                            t += reverse
+                    else:
+                        t = travel * ad
+                    v = a + t + node_cost[i, c]
+                    if v < acc[i, c, s2]:
+                        acc[i, c, s2] = v
+                        back[i, c, s2] = j * 2 + s
+        prev_ok = any_ok
+    out = np.full(n, -1, np.int64)
+    i = n - 1
+    nxt = -1
+    while i >= 0:
+        if nxt < 0:
+            # the end of a path (or a move without candidates): its cheapest state
+            best = np.inf
+            for c in range(k):
+                for s in range(2):
+                    if acc[i, c, s] < best:
+                        best = acc[i, c, s]
+                        nxt = c * 2 + s
+        if nxt >= 0:
+            out[i] = nxt // 2
+            nxt = back[i, nxt // 2, nxt % 2]
+        i -= 1
     return out
