@@ -347,10 +347,13 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                    mv_a0, mv_a1,
                    s_x0, s_y0, s_x1, s_y1, s_e, s_angle, s_fold, s_turn, s_scale,
                    s_in_pieces, s_p0, s_p1, s_len,
-                   p_t0, p_t1, p_angle, p_scale,
+                   p_t0, p_t1, p_angle, p_scale, p_fold, p_turn,
                    letter, d_ang, xd, ed, period, lo, hi, unbounded, fold, unwind, turns,
                    n_layers, m_feed, rot_feed):  # pragma: no cover
     """The reference's walk over the events, writing the file from ``pos0`` on.
+
+    ``p_fold``, ``p_turn`` are per piece what ``s_fold``, ``s_turn`` are per chord: the
+    turn into it made while moving, and its planned size.
 
     A rotation-only line carries ``F<rot_feed>`` (degrees per minute) when ``rot_feed``
     is positive and the feed in force after it is known, and the next motion line then
@@ -583,12 +586,14 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     qy0 = sy0 + t0 * (sy1 - sy0)
                     qx1 = sx0 + t1 * (sx1 - sx0)
                     qy1 = sy0 + t1 * (sy1 - sy0)
+                    gap_end = -1  # the end of the words of a line to the piece's start
                     if math.hypot(qx0 - px, qy0 - py) > 1e-9:
                         z = z0 + (z1 - z0) * min(1.0, (acc + t0 * s_len[s]) / tot) if ramp \
                             else 0.0
                         ns = _put_move(scratch, ns, qx0, qy0, ramp, z, xd)
                         if ns < 0:
                             return DECLINED, buf, n, changed, inserted, rotary, turned, li
+                        gap_end = ns
                         if first_end < 0:
                             first_end = ns
                         ns = _put_eol(scratch, ns, data, e0, e1)
@@ -604,8 +609,11 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                         if cm != cur_m:
                             c_word = True
                             c_val = c
-                            if not (s_fold[s] and not in_p
-                                    and abs(c - cur) <= s_turn[s] + 1e-6):
+                            if in_p:
+                                moving = p_fold[r] != 0 and abs(c - cur) <= p_turn[r] + 1e-6
+                            else:
+                                moving = s_fold[s] != 0 and abs(c - cur) <= s_turn[s] + 1e-6
+                            if not moving:
                                 c_word = False
                                 if fold and travel >= 0 and ns == 0 and t_line < 0:
                                     # the first thing this move does: folded into the travel
@@ -628,6 +636,16 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                                     u_line = ur
                                     u_c = c
                                     inserted += 1
+                                elif fold and gap_end >= 0:
+                                    # made on the way to the piece's start (nothing
+                                    # deposited): the word goes before that line's ending
+                                    ns = gap_end
+                                    scratch[ns] = 32
+                                    ns = _put(scratch, ns + 1, letter)
+                                    ns = put_fixed(scratch, ns, c, d_ang)
+                                    if first_end == gap_end:
+                                        first_end = ns
+                                    ns = _put_eol(scratch, ns, data, e0, e1)
                                 else:
                                     ns = _put(scratch, ns, was_g1)
                                     ns = _put(scratch, ns, letter)

@@ -446,7 +446,7 @@ def postprocess_bytes(
             plan = plan_orientations(p0, p1, widths[idx], tgt, nozzle, machine,
                                      options=options.orientation, previous=prev,
                                      prepared_target=tgt, chained=chained,
-                                     narrow_beads=narrow_beads,
+                                     narrow_beads=narrow_beads, fold_pieces=policy == "xy",
                                      # the cores are the targets' until the last is built
                                      workers=n_workers if last else 1)
             seg_angle[idx] = plan.angle
@@ -454,7 +454,8 @@ def postprocess_bytes(
             seg_width_laid[idx] = plan.width
             if plan.pieces:
                 split_found.append(idx[np.fromiter(plan.pieces, np.int64, len(plan.pieces))])
-                rows_found.append((idx[plan.piece_rows[0]], *plan.piece_rows[1:]))
+                rows_found.append((idx[plan.piece_rows[0]], *plan.piece_rows[1:],
+                                   plan.piece_fold))
             finite = plan.angle[np.isfinite(plan.angle)]
             if finite.size:
                 prev = float(finite[-1])
@@ -463,15 +464,18 @@ def postprocess_bytes(
 
     # ---- rewrite
     piece_rows = None
+    piece_fold = None
     seg_pieces: Mapping[int, list] = {}
     if rows_found:
-        cols = [np.concatenate([r[c] for r in rows_found]) for c in range(4)]
+        cols = [np.concatenate([r[c] for r in rows_found]) for c in range(5)]
         by_chord = np.argsort(cols[0], kind="stable")
-        piece_rows = tuple(c[by_chord] for c in cols)
+        piece_rows = tuple(c[by_chord] for c in cols[:4])
+        piece_fold = cols[4][by_chord]
         seg_pieces = PieceMap(np.concatenate(split_found), piece_rows)
     out, turned_per_layer = rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
                                     seg_width_laid, seg_pieces, widths, heights, wopts, turns,
-                                    e_policy, nozzle, piece_rows=piece_rows)
+                                    e_policy, nozzle, piece_rows=piece_rows,
+                                    piece_fold=piece_fold)
     reports = [LayerReport(**{**r.__dict__, "turned": turned_per_layer.get(r.index, 0)})
                for r in reports]
     summary = [{"z": r.z, "target_area": r.target_area, "lost_area": r.dropped_area,

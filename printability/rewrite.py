@@ -5,8 +5,10 @@ width laid), :func:`rewrite` copies the G-code: runs of lines that need no chang
 are copied as slices of the input, byte for byte; a move that only turns gains a
 rotary word (or a rotation-only line before it); a move whose E changes is edited
 in place (with ``G92 E…`` after it in absolute-E files); arcs and split moves
-become new ``G1`` lines. See :mod:`printability.postprocess` for what each change
-means to the print.
+become new ``G1`` lines, a turn into a piece riding on the piece's line where the plan
+made it while moving (``Plan.piece_fold``), else on the line to the piece's start when
+there is one (nothing is deposited there), else on a line of its own. See
+:mod:`printability.postprocess` for what each change means to the print.
 
 Two passes write the same bytes: :func:`rewrite_reference`, in Python, and the
 compiled one of :mod:`printability._rewrite_kernel` that :func:`rewrite` runs
@@ -16,6 +18,7 @@ cannot write exactly to the reference.
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -84,19 +87,22 @@ def first_command_line(lines: np.ndarray) -> int:
 
 def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, seg_pieces,
             widths, heights, wopts: WriterOptions, turns: bool, e_policy: str,
-            nozzle: Nozzle, *, piece_rows: tuple | None = None
-            ) -> tuple[RewriteOutput, dict[int, int]]:
+            nozzle: Nozzle, *, piece_rows: tuple | None = None,
+            piece_fold: np.ndarray | None = None) -> tuple[RewriteOutput, dict[int, int]]:
     """Copy the file, rewriting the part extrusions that need it.
 
     The compiled pass of :mod:`printability._rewrite_kernel` writes the bytes
     :func:`rewrite_reference` writes; what it declines (numbers or lines outside
     the range where it is exact, see there) goes to the reference. ``piece_rows`` are the
-    pieces of ``seg_pieces`` as arrays ``(chord, t0, t1, angle)`` by chord, when known.
+    pieces of ``seg_pieces`` as arrays ``(chord, t0, t1, angle)`` by chord, when known;
+    ``piece_fold`` per such row True where the turn into the piece is made during it
+    (:attr:`~printability.motion.orientation.Plan.piece_fold`, in the rows' order).
     """
     from printability._rewrite_kernel import OK, rewrite_kernel
 
     ev = _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widths,
-                 heights, wopts, turns, e_policy, nozzle, piece_rows=piece_rows)
+                 heights, wopts, turns, e_policy, nozzle, piece_rows=piece_rows,
+                 piece_fold=piece_fold)
     if not ev.ev_line.size:
         return rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold,
                                  seg_width_laid, seg_pieces, widths, heights, wopts, turns,
@@ -139,7 +145,7 @@ def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, 
         *(np.ascontiguousarray(seg[k], float) for k in ("x0", "y0", "x1", "y1", "e")),
         np.ascontiguousarray(seg_angle, float), np.ascontiguousarray(seg_fold, np.uint8),
         ev.s_turn, ev.s_scale, in_pieces, p_lo, p_hi, s_len,
-        p_t0, p_t1, p_angle, p_scale,
+        p_t0, p_t1, p_angle, p_scale, ev.p_fold, ev.p_turn,
         np.frombuffer(wopts.letter.encode("ascii"), np.uint8), int(wopts.angle_decimals),
         int(wopts.xy_decimals), 5, float(period), float(lo), float(hi),
         bool(math.isinf(lo) and math.isinf(hi) and lo < 0 < hi),
@@ -171,6 +177,8 @@ class _Events:
     s_scale: np.ndarray
     piece_rows: tuple
     piece_scale_flat: np.ndarray
+    p_fold: np.ndarray
+    p_turn: np.ndarray
 
     @property
     def piece_scale(self) -> dict[int, list[float]]:
@@ -192,7 +200,7 @@ _NONE, _TRAVEL, _RESET, _WORK, _UNRETRACT = 0, 1, 2, 3, 4
 
 def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widths, heights,
             wopts: WriterOptions, turns: bool, e_policy: str, nozzle: Nozzle, *,
-            piece_rows: tuple | None = None) -> _Events:
+            piece_rows: tuple | None = None, piece_fold: np.ndarray | None = None) -> _Events:
     from gcode.rotary import bead_area
 
     n_lines = len(g.lines)
@@ -261,15 +269,58 @@ def _events(g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widt
     rows = (np.asarray(rows[0], np.int64), *(np.asarray(r, float) for r in rows[1:]))
     scale = _piece_scales(seg, rows[0], rows[3], widths, h_seg, turns, e_policy, nozzle,
                           bead_area)
+    p_fold = np.zeros(len(rows[0]), np.uint8)
+    if piece_fold is not None and fold and turns:
+        p_fold[:] = np.asarray(piece_fold, bool)
+    s_turn, p_turn = _piece_turns(s_turn, np.asarray(seg_angle, dtype=float), rows,
+                                  wopts.period or 360.0)
     return _Events(lines_u[ev].astype(np.int64), move_u[ev].astype(np.int64),
                    effect[move_u[ev]].astype(np.int64), mv_a0, mv_a1, s_turn,
-                   s_scale, rows, scale)
+                   s_scale, rows, scale, p_fold, p_turn)
+
+
+def _piece_turns(s_turn: np.ndarray, seg_angle: np.ndarray, rows: tuple, period: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The planned turns around split chords: into each piece (from the piece before it on
+    its chord, else from the chord before: its orientation or its last piece's), and into a
+    whole chord after a split one (``s_turn`` there, a copy), each the nearest way round,
+    degrees; -1 where there is none."""
+    p_seg, p_angle = rows[0], rows[3]
+    npc = len(p_seg)
+    p_turn = np.full(npc, -1.0)
+    if npc == 0:
+        return s_turn, p_turn
+    n_seg = len(seg_angle)
+    first = np.ones(npc, bool)
+    first[1:] = p_seg[1:] != p_seg[:-1]
+    last = np.append(p_seg[1:] != p_seg[:-1], True)
+    end = seg_angle.copy()  # each chord's last orientation
+    end[p_seg[last]] = p_angle[last]
+    prev = np.full(npc, np.nan)
+    prev[1:] = p_angle[:-1]
+    fs = p_seg[first]
+    prev[first] = np.where(fs > 0, end[np.maximum(fs - 1, 0)], np.nan)
+
+    def dist(a, b):
+        return np.abs((a - b + 0.5 * period) % period - 0.5 * period)
+
+    ok = np.isfinite(prev) & np.isfinite(p_angle)
+    p_turn[ok] = dist(p_angle[ok], prev[ok])
+    # whole chords right after a split one
+    after = p_seg[last] + 1
+    after = after[after < n_seg]
+    after = after[np.isfinite(seg_angle[after]) & np.isfinite(end[after - 1])]
+    if after.size:
+        s_turn = s_turn.copy()
+        s_turn[after] = dist(seg_angle[after], end[after - 1])
+    return s_turn, p_turn
 
 
 def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid,
                       seg_pieces, widths, heights, wopts: WriterOptions, turns: bool,
                       e_policy: str, nozzle: Nozzle, *, events: _Events | None = None,
-                      piece_rows: tuple | None = None) -> tuple[RewriteOutput, dict[int, int]]:
+                      piece_rows: tuple | None = None, piece_fold: np.ndarray | None = None
+                      ) -> tuple[RewriteOutput, dict[int, int]]:
     """Copy the file, rewriting the part extrusions that need it (the reference, in Python).
 
     Only the lines of moves that may change are looked at one by one; the runs of
@@ -283,7 +334,7 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
 
     ev = events if events is not None else _events(
         g, moves, seg, seg_move, seg_angle, seg_width_laid, seg_pieces, widths, heights, wopts,
-        turns, e_policy, nozzle, piece_rows=piece_rows)
+        turns, e_policy, nozzle, piece_rows=piece_rows, piece_fold=piece_fold)
     out = RewriteOutput()
     n_lines = len(g.lines)
     starts = [*g.lines["start"].tolist(), len(data)]
@@ -309,6 +360,9 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
     s_turn = ev.s_turn.tolist()
     s_scale = ev.s_scale.tolist()
     piece_scale = ev.piece_scale
+    p_seg_list = ev.piece_rows[0].tolist()
+    p_fold = ev.p_fold.astype(bool).tolist()
+    p_turn = ev.p_turn.tolist()
 
     cur = 0.0  # rotary coordinate
     letter = wopts.letter
@@ -553,26 +607,30 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
             se = s_e[s]
             in_pieces = s in seg_pieces
             if in_pieces:
-                plist = [(p.t0, p.t1, p.angle, sc)
-                         for p, sc in zip(seg_pieces[s], piece_scale.get(s, ()),
-                                          strict=True)]
+                r0 = bisect.bisect_left(p_seg_list, s)
+                plist = [(p.t0, p.t1, p.angle, sc, p_fold[r0 + k], p_turn[r0 + k])
+                         for k, (p, sc) in enumerate(zip(seg_pieces[s], piece_scale.get(s, ()),
+                                                         strict=True))]
             else:
-                plist = [(0.0, 1.0, s_angle[s], s_scale[s])]
-            for t0, t1, phi, scale in plist:
+                plist = [(0.0, 1.0, s_angle[s], s_scale[s], s_fold[s], s_turn[s])]
+            for t0, t1, phi, scale, moving, turn in plist:
                 qx0, qy0 = sx0 + t0 * (sx1 - sx0), sy0 + t0 * (sy1 - sy0)
                 qx1, qy1 = sx0 + t1 * (sx1 - sx0), sy0 + t1 * (sy1 - sy0)
+                gap = False  # a line to the piece's start, not extruding, just written
                 if math.hypot(qx0 - px, qy0 - py) > 1e-9:
                     lines_new.append(b"G1 X" + format_number(qx0, xd).encode() + b" Y"
                                      + format_number(qy0, xd).encode() + z_word(s, t0))
                     px, py = qx0, qy0
+                    gap = True
                 c_word = b""
                 if turns and math.isfinite(phi):
                     c = coord_for(phi)
                     c_text = angle_text(c)
                     if c_text != cur_text:
                         c_word = (letter + c_text).encode()
-                        if not (s_fold[s] and not in_pieces
-                                and abs(c - cur) <= s_turn[s] + 1e-6):
+                        # the turn checked by the planner, made while moving (a whole chord's
+                        # or a piece's), else a turn of its own before
+                        if not (moving and abs(c - cur) <= turn + 1e-6):
                             if fold and last_travel_chunk is not None and not lines_new:
                                 # the first thing this move does: folded into the travel
                                 if wopts.unwind:
@@ -585,6 +643,9 @@ def rewrite_reference(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_wi
                             elif u_slot is not None and not lines_new:
                                 # the first thing this move does: before the un-retract
                                 before_unretract(c_word.decode())
+                            elif fold and gap:
+                                # made on the way to the piece's start (nothing deposited)
+                                lines_new[-1] = lines_new[-1] + b" " + c_word
                             else:
                                 with_f = bool(rot_f) and math.isfinite(feed)
                                 lines_new.append(b"G1 " + c_word

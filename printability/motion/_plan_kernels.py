@@ -14,8 +14,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["chain_nearest", "chain_viterbi", "merge_pieces", "piece_losses", "points_along",
-           "smooth_chain", "split_intervals", "width_picks"]
+__all__ = ["chain_nearest", "chain_viterbi", "distinct_candidates", "fold_pairs", "merge_pieces",
+           "piece_losses", "points_along", "smooth_chain", "split_intervals", "width_picks"]
 
 
 @numba.njit(cache=True)
@@ -293,26 +293,37 @@ def chain_viterbi(cand_in, cand_out, node_cost, folds, params):  # pragma: no co
     n, k = cand_in.shape
     acc = np.full((n, k, 2), np.inf)
     back = np.full((n, k, 2), -1, np.int64)
+    # each row's candidates (not NaN), in column order: rows hold a few of the k columns
+    cols = np.empty((2, k), np.int64)
+    m_prev = 0
     prev_ok = False
     for i in range(n):
-        any_ok = False
+        cur = i % 2
+        m = 0
         for c in range(k):
+            if cand_in[i, c] == cand_in[i, c]:
+                cols[cur, m] = c
+                m += 1
+        any_ok = m > 0
+        for q in range(m):
+            c = cols[cur, q]
             y = cand_in[i, c]
-            if y != y:
-                continue
-            any_ok = True
             if not prev_ok:
                 acc[i, c, 0] = node_cost[i, c]
                 acc[i, c, 1] = node_cost[i, c]
                 continue
-            for j in range(k):
+            for qj in range(m_prev):
+                j = cols[1 - cur, qj]
+                if acc[i - 1, j, 0] == np.inf and acc[i - 1, j, 1] == np.inf:
+                    continue
+                # the turn from j to c, the same for both states of j
+                d = (y - cand_out[i - 1, j] + 0.5 * per) % per - 0.5 * per
+                ad = abs(d)
+                f = folds[i, j, c]
                 for s in range(2):
                     a = acc[i - 1, j, s]
                     if a == np.inf:
                         continue
-                    d = (y - cand_out[i - 1, j] + 0.5 * per) % per - 0.5 * per
-                    ad = abs(d)
-                    f = folds[i, j, c]
                     s2 = s if ad <= 1e-9 else (1 if d > 0.0 else 0)
                     if f:
                         t = ad + (stop if ad > 1e-9 and f == 1 else 0.0)
@@ -325,6 +336,7 @@ def chain_viterbi(cand_in, cand_out, node_cost, folds, params):  # pragma: no co
                         acc[i, c, s2] = v
                         back[i, c, s2] = j * 2 + s
         prev_ok = any_ok
+        m_prev = m
     out = np.full(n, -1, np.int64)
     i = n - 1
     nxt = -1
@@ -342,3 +354,52 @@ def chain_viterbi(cand_in, cand_out, node_cost, folds, params):  # pragma: no co
             nxt = back[i, nxt // 2, nxt % 2]
         i -= 1
     return out
+
+
+@numba.njit(cache=True)
+def distinct_candidates(red, keep, per):  # pragma: no cover
+    """Clear ``keep[i, c]`` where an earlier kept column of row ``i`` holds the same
+    orientation modulo ``per`` (to 1e-9), in place: the numpy loop over the columns of
+    :func:`printability.motion.orientation._least_turning`, the same operations per pair
+    (``(a - b + per/2) % per - per/2``), without its (rows × columns) temporaries."""
+    n, k = red.shape
+    half = 0.5 * per
+    for i in range(n):
+        for c in range(1, k):
+            if not keep[i, c]:
+                continue
+            b = red[i, c]
+            for j in range(c):
+                if keep[i, j] and abs((red[i, j] - b + half) % per - half) < 1e-9:
+                    keep[i, c] = False
+                    break
+
+
+@numba.njit(cache=True)
+def fold_pairs(cand_in, cand_out, chained, per, fold_max):  # pragma: no cover
+    """The table of :func:`printability.motion.orientation._fold_table`, compiled: per move
+    and pair (previous move's candidate j, its c) 0 after a travel, 1 chained, 3 where the
+    turn (nearest way round, ``np.round`` as ``np.rint``: the same bits) is more than
+    1e-9 and at most ``fold_max``. No (moves × k × k) temporaries."""
+    n, k = cand_in.shape
+    folds = np.zeros((n, k, k), np.uint8)
+    for i in range(n):
+        if not chained[i]:
+            continue
+        for j in range(k):
+            for c in range(k):
+                folds[i, j, c] = 1
+        if i == 0:
+            continue
+        for j in range(k):
+            x = cand_out[i - 1, j]
+            if x != x:
+                continue
+            for c in range(k):
+                y = cand_in[i, c]
+                if y != y:
+                    continue
+                step = abs(y + per * np.rint((x - y) / per) - x)
+                if step > 1e-9 and step <= fold_max:
+                    folds[i, j, c] = 3
+    return folds

@@ -24,11 +24,15 @@ G):
    cheapest) is kept, and the rest is searched at every orientation, whole, then
    in pieces of up to twice ``split_length``, then the pieces that still fit
    nowhere halved (down to ``split_length``); what fits nowhere then is
-   dropped, and reported;
+   dropped, and reported; the pieces next to a split move's longest one then take its
+   orientation where it fits (:func:`_align_pieces`);
 4. along each path, the admissible orientations (of a few per whole move: those laying
    the planned width, the grid, fixed angles to the motion) whose turns cost least,
    a turn made standing still (larger than ``fold_max``, or not admissible during
-   the move) and a reversal costing extra (:func:`_least_turning`).
+   the move) and a reversal costing extra (:func:`_least_turning`);
+5. which turns are made during a move or a piece of a split one (``Plan.fold``,
+   ``Plan.piece_fold``: :func:`_folds`, with the turning footprint tested in steps of
+   at most :data:`_TURN_STEP`, :func:`_turning_fits`).
 """
 
 from __future__ import annotations
@@ -47,6 +51,9 @@ from printability.motion import footprints as fp
 from printability.motion._plan_kernels import (
     chain_nearest,
     chain_viterbi,
+    distinct_candidates,
+    fold_pairs,
+    merge_pieces,
     smooth_chain,
     width_picks,
 )
@@ -178,11 +185,15 @@ class Plan:
     width
         Bead width laid at the chosen orientation, mm (NaN if dropped/split).
     fold
-        (n,) True where the turn from the previous move's orientation is made
-        during the move (checked with the turning footprint).
+        (n,) True where the turn from the previous move's orientation (its last piece's
+        when it is split) is made during the move (checked with the turning footprint).
     piece_rows
         The pieces of ``pieces`` as arrays ``(move, t0, t1, angle)``, by move and then
         as listed (empty lists have no row); built from ``pieces`` when not given.
+    piece_fold
+        Per row of ``piece_rows``, True where the turn into the piece (from the previous
+        piece of its move, or from the previous move for its first piece) is made during
+        the piece (checked with the turning footprint); None: never.
     """
 
     angle: np.ndarray
@@ -190,6 +201,7 @@ class Plan:
     pieces: Mapping[int, list[OrientedPiece]] = field(default_factory=dict)
     fold: np.ndarray | None = None
     piece_rows: tuple | None = None
+    piece_fold: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.piece_rows is None:
@@ -398,6 +410,7 @@ def plan_orientations(
     prepared_target: BaseGeometry | None = None,
     chained: np.ndarray | None = None,
     narrow_beads: bool = False,
+    fold_pieces: bool = True,
     workers: int = 1,
 ) -> Plan:
     """Choose an orientation for every extruding move of one layer.
@@ -431,6 +444,9 @@ def plan_orientations(
         *during* it when the footprint turning along the move still fits
         (``Plan.fold``); otherwise the nozzle turns standing still, not
         extruding.
+    fold_pieces
+        Whether the turns into the pieces of split moves may be made during them too
+        (``Plan.piece_fold``; with ``chained`` given).
     workers
         Threads the footprint tests are shared out over (the same plan on any number).
 
@@ -519,6 +535,9 @@ def plan_orientations(
                 tried=_tried(limit[rest], len(cands)),
                 exact=None if exact is None else exact[rest], workers=workers)
             rows = (mv[rest][pm], pa, pb, pp)
+            if turns:
+                rows = _align_pieces(rows, direction, widths, per, prepared_target, pieces,
+                                     p0, p1, beta, wtab, options, workers=workers)
             result_pieces = PieceMap(mv[rest], rows)
             angle[mv[rest]] = np.nan
     if turns and n > 1:
@@ -529,20 +548,173 @@ def plan_orientations(
                                    prepared_target, pieces, p0, p1, scale, chained, beta,
                                    wtab, options, workers=workers)
     fold = np.zeros(n, dtype=bool)
-    if turns and chained is not None and n > 1:
-        prev_a = np.concatenate([[np.nan], angle[:-1]])
-        step = np.abs(angle - prev_a)
-        cand = np.flatnonzero(np.asarray(chained, bool) & np.isfinite(step) & (step > 1e-9)
-                              & (step <= options.fold_max))
-        if cand.size:
-            fold[cand] = fp.fits(prepared_target, pieces, take_rows(p0, cand), take_rows(p1, cand),
-                                 prev_a[cand],
-                              angle_end=angle[cand], workers=workers)
+    piece_fold = np.zeros(len(rows[0]), dtype=bool)
+    if turns and chained is not None and n > 0:
+        fold, piece_fold = _folds(angle, rows, np.asarray(chained, bool), per, options,
+                                  prepared_target, pieces, p0, p1, fold_pieces,
+                                  workers=workers)
     width = np.full(n, np.nan)
     good = ~np.isnan(angle)
     rel = np.mod(angle[good] - direction[good], 360.0)
     width[good] = np.interp(rel, np.append(beta, 360.0), np.append(wtab, wtab[0]))
-    return Plan(angle=angle, width=width, pieces=result_pieces, fold=fold, piece_rows=rows)
+    return Plan(angle=angle, width=width, pieces=result_pieces, fold=fold, piece_rows=rows,
+                piece_fold=piece_fold)
+
+
+def _folds(angle, rows, chained, per, options, target, pieces, p0, p1, fold_pieces, *,
+           workers=1):
+    """Which turns are made while moving: ``Plan.fold`` (per move) and ``Plan.piece_fold``
+    (per piece row).
+
+    A turn of at most ``fold_max`` into a whole move chained to the previous one (whose
+    orientation is its own, or its last piece's when it is split) is made during the move
+    where the footprint turning along it fits; the same for a piece of a split move, from
+    the previous piece of the move or, for its first piece, from the previous move (when
+    chained; ``fold_pieces`` False: never, as where F would not be the XY feed). The test
+    is :func:`_turning_fits`, on the piece's own stretch of the move: what it deposits
+    while turning stays inside the grown target, as every other footprint.
+    """
+    n = len(angle)
+    pm, pt0, pt1, pa = rows
+    pm = np.asarray(pm, np.int64)
+    npc = pm.size
+    # each move's last orientation (NaN: dropped)
+    end = np.asarray(angle, float).copy()
+    first = np.zeros(0, bool)
+    if npc:
+        first = np.ones(npc, bool)
+        first[1:] = pm[1:] != pm[:-1]
+        last = np.append(pm[1:] != pm[:-1], True)
+        end[pm[last]] = pa[last]
+    fold = np.zeros(n, dtype=bool)
+    piece_fold = np.zeros(npc, dtype=bool)
+    whole = np.isfinite(angle)
+    # whole moves: from the previous move's end (the raw difference after a whole move, as
+    # the chain unwrapped them; the nearest equivalent after a split one)
+    prev_a = np.concatenate([[np.nan], end[:-1]])
+    after_whole = np.concatenate([[False], whole[:-1]])
+    a_end = np.where(after_whole, angle, angle + per * np.round((prev_a - angle) / per))
+    with np.errstate(invalid="ignore"):
+        step = np.abs(a_end - prev_a)
+        cand = np.flatnonzero(chained & whole & np.isfinite(step) & (step > 1e-9)
+                              & (step <= options.fold_max))
+    # pieces: from the previous piece of the move, or the previous move's end
+    q_prev = np.full(npc, np.nan)
+    q_ok = np.zeros(npc, bool)
+    if npc and fold_pieces:
+        q_prev[~first] = pa[:-1][~first[1:]]
+        q_ok[~first] = True
+        fm = pm[first]
+        has_prev = fm > 0
+        q_prev[np.flatnonzero(first)[has_prev]] = end[fm[has_prev] - 1]
+        q_ok[np.flatnonzero(first)[has_prev]] = chained[fm[has_prev]]
+    q_end = pa + per * np.round((q_prev - pa) / per) if npc else pa
+    with np.errstate(invalid="ignore"):
+        q_step = np.abs(q_end - q_prev)
+        q_cand = np.flatnonzero(q_ok & np.isfinite(q_step) & (q_step > 1e-9)
+                                & (q_step <= options.fold_max))
+    m = q_cand.size
+    if cand.size + m == 0:
+        return fold, piece_fold
+    mv = pm[q_cand]
+    d = take_rows(p1, mv) - take_rows(p0, mv)
+    a0 = take_rows(p0, mv) + pt0[q_cand][:, None] * d
+    a1 = take_rows(p0, mv) + pt1[q_cand][:, None] * d
+    ok = _turning_fits(target, pieces, np.concatenate([take_rows(p0, cand), a0]),
+                       np.concatenate([take_rows(p1, cand), a1]),
+                       np.concatenate([prev_a[cand], q_prev[q_cand]]),
+                       np.concatenate([a_end[cand], q_end[q_cand]]), workers=workers)
+    fold[cand] = ok[:cand.size]
+    piece_fold[q_cand] = ok[cand.size:]
+    return fold, piece_fold
+
+
+#: the largest turn (degrees) :func:`_turning_fits` tests in one step
+_TURN_STEP = 5.0
+
+
+def _turning_fits(target, pieces, a, b, phi0, phi1, *, workers=1):
+    """Whether the nozzle moving from ``a`` to ``b`` while turning from ``phi0`` to ``phi1``
+    (both linear in time) deposits inside ``target``.
+
+    :func:`fits` bounds a turning footprint by the hull of its two ends grown by
+    1/cos(turn/2) (1.5 % for 20°: more than the tolerance on a 0.8 mm orifice, so a turn
+    next to the target's edge never fitted). Here a turn of more than :data:`_TURN_STEP`
+    is cut into equal steps of the move and the turn, each tested so: the steps cover
+    the motion, and each bound contains its step's footprints, so the test stays an
+    outer one, only tighter (1/cos(2.5°): 0.1 %).
+    """
+    n = len(a)
+    if n == 0:
+        return np.ones(0, dtype=bool)
+    turn = np.abs(np.asarray(phi1, float) - np.asarray(phi0, float))
+    m = np.maximum(1, np.ceil(turn / _TURN_STEP - 1e-9)).astype(np.int64)
+    if np.all(m == 1):
+        return fp.fits(target, pieces, a, b, phi0, angle_end=phi1, workers=workers)
+    row = np.repeat(np.arange(n), m)
+    lo = np.repeat(np.cumsum(m) - m, m)
+    k = np.arange(row.size) - lo  # step within its row
+    mr = m[row].astype(float)
+    t0 = k / mr
+    t1 = (k + 1) / mr
+    d = b - a
+    s0 = a[row] + t0[:, None] * d[row]
+    s1 = np.where((k + 1 == m[row])[:, None], b[row], a[row] + t1[:, None] * d[row])
+    f0 = phi0[row] + t0 * (phi1 - phi0)[row]
+    f1 = np.where(k + 1 == m[row], phi1[row], phi0[row] + t1 * (phi1 - phi0)[row])
+    ok = fp.fits(target, pieces, s0, s1, f0, angle_end=f1, workers=workers)
+    return np.logical_and.reduceat(ok, np.cumsum(m) - m)
+
+
+def _align_pieces(rows, direction, widths, per, target, pieces, p0, p1, beta, wtab, options, *,
+                  workers=1):
+    """The pieces of each split move next to its longest one take that one's orientation
+    where it fits there and lays a width no further from the plan (``width_slack``) than
+    their own: no turn between them then (and contiguous ones are joined into one).
+
+    The split searches each stretch on its own, cheapest first, and the short pieces next
+    to a corner end up at a grid orientation a few degrees from the long piece's.
+    """
+    pm, t0, t1, pa = rows
+    npc = len(pm)
+    if npc < 2:
+        return rows
+    span = t1 - t0
+    # the longest piece of each move (the first of equals)
+    lo = np.flatnonzero(np.concatenate([[True], pm[1:] != pm[:-1]]))
+    best = lo + np.array([int(np.argmax(span[a:b])) for a, b in
+                          zip(lo.tolist(), [*lo[1:].tolist(), npc], strict=True)], np.int64)
+    anchor = np.repeat(best, np.diff(np.append(lo, npc)))
+    r = np.arange(npc)
+    near = (np.abs(r - anchor) == 1)
+    target_a = pa[anchor]
+    diff = np.abs((pa - target_a + per / 2) % per - per / 2)
+    cand = np.flatnonzero(near & (diff > 1e-9))
+    if cand.size == 0:
+        return rows
+    table_b = np.append(beta, 360.0)
+    table_w = np.append(wtab, wtab[0])
+    m = pm[cand]
+    w_plan = widths[m]
+
+    def werr(phi):
+        w = np.interp(np.mod(phi - direction[m], 360.0), table_b, table_w)
+        return np.where(np.isnan(w_plan), 0.0, np.abs(w - np.nan_to_num(w_plan)))
+
+    ok_w = werr(target_a[cand]) <= werr(pa[cand]) + options.width_slack
+    cand = cand[ok_w]
+    if cand.size == 0:
+        return rows
+    m = pm[cand]
+    d = p1[m] - p0[m]
+    a = p0[m] + t0[cand][:, None] * d
+    b = p0[m] + t1[cand][:, None] * d
+    ok = fp.fits(target, pieces, a, b, target_a[cand], workers=workers)
+    if not ok.any():
+        return rows
+    pa = pa.copy()
+    pa[cand[ok]] = target_a[cand[ok]]
+    return merge_pieces(pm, t0, t1, pa)
 
 
 def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scale, machine, *,
@@ -603,6 +775,8 @@ _STOP = 60.0
 _REVERSE = 20.0
 #: orientations relative to the motion among :func:`_least_turning`'s candidates, degrees
 _RELATIVE = np.arange(-90.0, 90.0, 5.0)
+#: rounds of :func:`_least_turning`'s Viterbi pass testing the turns its path makes while moving
+_FOLD_ROUNDS = 12
 
 
 def _least_turning(angle, rows, c1, c2, direction, widths, per, previous, target, pieces, p0, p1,
@@ -622,8 +796,9 @@ def _least_turning(angle, rows, c1, c2, direction, widths, per, previous, target
     fit (the same test as every orientation: the MMC promise is unchanged); a split
     move keeps its pieces. A Viterbi pass (:func:`chain_viterbi`) then picks per path
     the candidates costing least: a turn between chained moves costs its size, plus
-    :data:`_STOP` unless it can be made during the move (the test ``Plan.fold`` is
-    made with, on every pair of candidates at most ``fold_max`` apart), plus
+    :data:`_STOP` unless it can be made during the move or, into a split move, its
+    first piece (the test ``Plan.fold`` is made with, on the pairs of candidates at most
+    ``fold_max`` apart that the pass's path takes, in rounds), plus
     :data:`_REVERSE` where it turns back; across a travel a quarter of its size; a
     width error as 10° of turn per ``width_slack`` and mm of move (at least 1 mm).
     Only for an axis that reaches every orientation.
@@ -653,10 +828,7 @@ def _least_turning(angle, rows, c1, c2, direction, widths, per, previous, target
                        np.where(own <= _EXACT, _EXACT, np.maximum(own, options.width_slack)))
     keep = whole[:, None] & (err <= allowed[:, None] + 1e-9)
     # the same orientation twice (modulo the period) is tested once
-    red = np.mod(cols, per)
-    for c in range(1, cols.shape[1]):
-        same = np.abs((red[:, :c] - red[:, c:c + 1] + per / 2) % per - per / 2) < 1e-9
-        keep[:, c] &= ~(same & keep[:, :c]).any(axis=1)
+    distinct_candidates(np.ascontiguousarray(np.mod(cols, per)), keep, float(per))
     test = keep.copy()
     test[:, 0] = False  # the move's own orientation fits already
     mv, col = np.nonzero(test)
@@ -680,11 +852,41 @@ def _least_turning(angle, rows, c1, c2, direction, widths, per, previous, target
         cand_out[pm[last], 0] = pa[last]
     cost = np.where(keep, 10.0 * np.maximum(length, 1.0)[:, None] * err
                     / max(options.width_slack, 1e-9), 0.0)
-    folds = _fold_table(cand_in, cand_out, whole, chained, per, options)
-    _test_folds(folds, cand_in, cand_out, per, target, pieces, p0, p1, workers)
-    pick = chain_viterbi(np.ascontiguousarray(cand_in), np.ascontiguousarray(cand_out),
-                         np.ascontiguousarray(cost), folds,
-                         np.array([per, _STOP, 0.25, _REVERSE]))
+    folds = _fold_table(cand_in, cand_out, chained, per, options)
+    # where the turn into each move is made: along the move, or its first piece
+    ta, tb = p0, p1
+    if pm.size:
+        ta, tb = p0.copy(), p1.copy()
+        fm = pm[first]
+        d = p1[fm] - p0[fm]
+        ta[fm] = p0[fm] + rows[1][first][:, None] * d
+        tb[fm] = p0[fm] + rows[2][first][:, None] * d
+    cand_in = np.ascontiguousarray(cand_in)
+    cand_out = np.ascontiguousarray(cand_out)
+    cost = np.ascontiguousarray(cost)
+    params = np.array([per, _STOP, 0.25, _REVERSE])
+    # The turns during a move are tested where the path takes them only: the pass counts
+    # an untested one as made while moving (it can cost no less), so once every turn of
+    # the cheapest path has been tested, that path is the cheapest with every turn tested
+    # (each round tests a path's worth, a few thousand; testing every pair, millions, cost
+    # the shared screw sample 2 s). With the moves whose turn failed tested whole, the
+    # screw takes 4 rounds per batch; after _FOLD_ROUNDS a turn still untested on the path
+    # would only be mis-priced: ``Plan.fold`` is tested on its own (_folds).
+    for r in range(_FOLD_ROUNDS + 1):
+        pick = chain_viterbi(cand_in, cand_out, cost, folds, params)
+        i = np.flatnonzero((pick[1:] >= 0) & (pick[:-1] >= 0)) + 1
+        i = i[folds[i, pick[i - 1], pick[i]] == 3]
+        if i.size == 0 or r == _FOLD_ROUNDS:
+            break
+        _test_folds(folds, cand_in, cand_out, per, target, pieces, ta, tb, workers,
+                    at=(i, pick[i - 1], pick[i]))
+        # where the path's turn cannot be made while moving, the others of that move are
+        # likely not to either: all tested at once, rather than a round for each
+        bad = i[folds[i, pick[i - 1], pick[i]] == 1]
+        if bad.size:
+            b_i, b_j, b_c = np.nonzero(folds[bad] == 3)
+            _test_folds(folds, cand_in, cand_out, per, target, pieces, ta, tb, workers,
+                        at=(bad[b_i], b_j, b_c))
     out = angle.copy()
     prev = previous
     for i in range(n):
@@ -700,37 +902,29 @@ def _least_turning(angle, rows, c1, c2, direction, widths, per, previous, target
     return out
 
 
-def _fold_table(cand_in, cand_out, whole, chained, per, options):
+def _fold_table(cand_in, cand_out, chained, per, options):
     """Per move and pair of candidates (previous move's j, its c), as
     :func:`chain_viterbi` reads them: 0 after a travel, 1 chained, 3 where the turn from
-    j to c (at most ``fold_max``, both whole moves) may be made during the move: not
-    tested yet (:func:`_test_folds` makes it 2 where it can, 1 where it cannot)."""
-    n, k = cand_in.shape
-    folds = np.zeros((n, k, k), np.uint8)
+    j to c (at most ``fold_max``; into a whole move or a split one's first piece) may be
+    made during the move: not tested yet (:func:`_test_folds` makes it 2 where it can, 1
+    where it cannot)."""
     if chained is None:
-        return folds
-    ch = np.asarray(chained, bool)
-    folds[ch] = 1
-    both = np.flatnonzero(ch[1:] & whole[1:] & whole[:-1]) + 1
-    if both.size == 0:
-        return folds
-    x = cand_out[both - 1][:, :, None]  # (m, j, 1)
-    y = cand_in[both][:, None, :]  # (m, 1, c)
-    step = np.abs(y + per * np.round((x - y) / per) - x)
-    pair = np.isfinite(step) & (step > 1e-9) & (step <= options.fold_max)
-    sub = folds[both]
-    sub[pair] = 3
-    folds[both] = sub
-    return folds
+        return np.zeros((*cand_in.shape, cand_in.shape[1]), np.uint8)
+    # a split move's candidates are its pieces (NaN where it has none: no pair)
+    return fold_pairs(np.ascontiguousarray(cand_in, dtype=float),
+                      np.ascontiguousarray(cand_out, dtype=float),
+                      np.ascontiguousarray(chained, dtype=bool), float(per),
+                      float(options.fold_max))
 
 
-def _test_folds(folds, cand_in, cand_out, per, target, pieces, p0, p1, workers):
-    """Test the turns during a move that ``folds`` marks untested (3): the test
-    :func:`plan_orientations` makes for ``Plan.fold``; 2 where it can be made, else 1."""
-    i, j, c = np.nonzero(folds == 3)
+def _test_folds(folds, cand_in, cand_out, per, target, pieces, p0, p1, workers, *, at=None):
+    """Test the turns during a move that ``folds`` marks untested (3), or those at ``at``
+    (moves, previous candidates, candidates): the test :func:`plan_orientations` makes for
+    ``Plan.fold`` (:func:`_turning_fits`); 2 where it can be made, else 1."""
+    i, j, c = np.nonzero(folds == 3) if at is None else at
     if i.size:
         x = cand_out[i - 1, j]
         y = cand_in[i, c]
-        ok = fp.fits(target, pieces, take_rows(p0, i), take_rows(p1, i), x,
-                     angle_end=y + per * np.round((x - y) / per), workers=workers)
+        ok = _turning_fits(target, pieces, take_rows(p0, i), take_rows(p1, i), x,
+                           y + per * np.round((x - y) / per), workers=workers)
         folds[i, j, c] = np.where(ok, 2, 1)
