@@ -257,6 +257,7 @@ def parse_gcode(
             path, "no G-code commands found (expected lines such as 'G1 X10 Y10')"
         )
 
+    _refuse_bad_numbers(data, lines, words, path)
     info = scan_comments(data, starts)
     fl = _resolve_flavor(flavor, info)
     err, err_line, mv = run_machine(lex_lines, lex_words, flavor=fl, engine=engine)
@@ -328,6 +329,69 @@ def _refuse_binary(data: bytes, lines: np.ndarray, path: str) -> None:
             "this does not look like a G-code file",
             line=i + 1,
         )
+
+
+#: Largest coordinate (mm, or degrees) and feed (mm/min) a move may carry: a kilometre and
+#: 10 km/min are beyond any printer, and far below where float rounding or overflow begins.
+MAX_COORDINATE = 1.0e6
+MAX_FEED = 1.0e7
+_MOTION_LETTERS = np.zeros(256, dtype=bool)
+_MOTION_LETTERS[[ord(c) for c in "XYZEFIJRABCUVW"]] = True
+
+
+def _refuse_bad_numbers(data: bytes, lines: np.ndarray, words: np.ndarray, path: str) -> None:
+    """Refuse a move whose axis or feed word is not a plain finite number in range.
+
+    Firmware read such words differently (Marlin skips a word without a number, ``Xnan``
+    included; Klipper's ``float()`` takes ``Xnan`` as NaN and ``X1e309`` as infinity; our
+    lexer, like Marlin's parser, splits ``1e309`` into X1 and E309), so no reading of them
+    is safe.
+    """
+    if not len(words):
+        return
+    motion = ((lines["kind"] == _lexer.KIND_COMMAND) & (lines["letter"] == ord("G"))
+              & (lines["major"] >= 0) & (lines["major"] <= 3) & (lines["minor"] < 0))
+    on = motion[words["line"]] & _MOTION_LETTERS[words["letter"]]
+    if not on.any():
+        return
+    v = words["value"]
+    # (a malformed word, "X1..5", is the state machine's error to report)
+    valueless = (words["flags"] & _lexer.WORD_VALUELESS) != 0
+    malformed = (words["flags"] & _lexer.WORD_MALFORMED) != 0
+    with np.errstate(invalid="ignore"):
+        limit = np.where(words["letter"] == ord("F"), MAX_FEED, MAX_COORDINATE)
+        huge = ~valueless & ~malformed & ~(np.abs(v) <= limit)
+    # "1e309": a number, then a lower-case e touching it (upper-case E touching a number is
+    # compact G-code, X10E.5)
+    first = np.r_[True, words["line"][1:] != words["line"][:-1]]
+    touching = np.r_[False, words["start"][1:] == words["end"][:-1]] & ~first
+    starts = np.clip(words["start"], 0, max(len(data) - 1, 0))
+    exponent = touching & (np.frombuffer(data, np.uint8)[starts] == ord("e")) if len(data) \
+        else np.zeros(len(words), bool)
+    bad = on & (valueless | huge | exponent)
+    if not bad.any():
+        return
+    k = int(np.flatnonzero(bad)[0])
+    li = int(words["line"][k])
+    letter = chr(words["letter"][k])
+    if exponent[k]:
+        what = ("a number in exponent notation (G-code numbers have none; firmware read it "
+                "differently)")
+    elif valueless[k]:
+        what = (f"{letter} without a number (firmware disagree on it: Marlin skips the word, "
+                f"Klipper reads '{letter}nan' as NaN)")
+    else:
+        unit = "mm/min" if letter == "F" else "mm"
+        lim = MAX_FEED if letter == "F" else MAX_COORDINATE
+        what = f"{letter} out of range (expected a finite number up to {lim:g} {unit})"
+    s0, e0 = int(lines["start"][li]), int(lines["content_end"][li])
+    excerpt = data[s0:min(e0, s0 + 60)].decode("ascii", "backslashreplace")
+    if e0 - s0 > 60:
+        excerpt += "..."
+    msg = f"this move has {what}; found {excerpt!r}"
+    if li == len(lines) - 1 and not data.endswith((b"\n", b"\r")):
+        msg = "the file ends in the middle of a line (truncated?): " + msg
+    raise FileFormatError(path, msg, line=li + 1)
 
 
 def _raise_move_error(data, lines, err, li, path) -> None:

@@ -199,8 +199,11 @@ def test_firmware_retraction_and_tools():
 
 
 def test_valueless_words_do_not_move():
-    m = moves_of("G1 X1 Y1\nM84 X Y E\nG1 X Y2\n")
+    m = moves_of("G1 X1 Y1\nM84 X Y E\nG1 Y2\n")
     assert m[["x1", "y1"]].tolist() == [(1, 1), (1, 2)]
+    # on a move, a word without a number is refused (firmware disagree on it)
+    with pytest.raises(FileFormatError, match="X without a number"):
+        moves_of("G1 X1 Y1\nG1 X Y2\n")
 
 
 def test_extrusion_needs_xy_motion():

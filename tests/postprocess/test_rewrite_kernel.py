@@ -152,7 +152,7 @@ def test_long_words_stay_inside_the_kernels_buffers(prusa_short):
     """Moves whose F word is long (a split move's first new line copies it): the compiled
     pass writes what the reference writes (its buffers grow to fit)."""
     data = prusa_short.read_bytes()
-    long_f = b" F" + b"1" * 3000
+    long_f = b" F1800." + b"0" * 3000  # long, and a feed a printer takes (1800 mm/min)
     lines = data.split(b"\n")
     for k, line in enumerate(lines):
         if line.startswith(b"G1 X") and b" E" in line and b";" not in line:
