@@ -13,7 +13,8 @@ geometry. The pieces:
   :mod:`machine_io.connection`, :mod:`machine_io.resend`,
   :mod:`machine_io.streaming`, :mod:`machine_io.interrupts` and
   :mod:`machine_io.reporting`;
-- :mod:`machine_io.display` — a rich progress bar.
+- :mod:`machine_io.display` — progress for people: a live bar in a terminal, a few plain
+  lines elsewhere.
 
 >>> from machine_io import Host, HostConfig, load_program   # doctest: +SKIP
 >>> with Host("/dev/ttyUSB0", config=HostConfig(baud=115200)) as host:  # doctest: +SKIP

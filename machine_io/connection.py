@@ -86,25 +86,32 @@ class ConnectionMixin:
         return text
 
     def _replies(self, deadline: float) -> Iterator[Reply]:
-        """The replies that arrive until ``deadline``, each parsed and observed."""
-        while (line := self._readline(deadline)) is not None:
+        """The replies that arrive until ``deadline``, each parsed and observed.
+
+        The deadline holds even for a board that never stops talking (the
+        reader hands out complete lines without looking at the clock).
+        """
+        while time.monotonic() < deadline and (line := self._readline(deadline)) is not None:
             reply = parse_reply(line)
             self._observe(reply)
             yield reply
 
     def _wait_banner(self, timeout: float) -> bool:
         deadline = time.monotonic() + timeout
-        while True:
+        # A board in a boot loop or a noisy line never goes quiet: every wait has an end.
+        while time.monotonic() < deadline:
             line = self._readline(deadline)
             if line is None:
                 return False
             reply = parse_reply(line)
             if reply.kind == "start":
                 # Drain the rest of the banner quickly (it arrives in one burst).
+                end = time.monotonic() + max(1.0, timeout)
                 quiet = time.monotonic() + 0.3
-                while self._readline(quiet) is not None:
+                while time.monotonic() < end and self._readline(min(quiet, end)) is not None:
                     quiet = time.monotonic() + 0.3
                 return True
+        return False
 
     def _handshake(self, number: int = 0) -> None:
         """``M110 N<number>``: the next line the firmware expects is ``number + 1``."""
@@ -122,8 +129,9 @@ class ConnectionMixin:
                     continue
                 if reply.kind == "ok":
                     # Let a late duplicate reply of an earlier attempt arrive and drop it.
+                    end = time.monotonic() + 1.0
                     quiet = time.monotonic() + 0.05
-                    while self._readline(quiet) is not None:
+                    while time.monotonic() < end and self._readline(min(quiet, end)) is not None:
                         quiet = time.monotonic() + 0.05
                     if refused and reply.number != number:
                         break
@@ -155,7 +163,9 @@ class ConnectionMixin:
                     if got:
                         return got
                     got += [r.text for r in self._replies(time.monotonic() + 0.1) if wanted(r)]
-                    return got
+                    # An ok and nothing else: the query may have been damaged on the wire
+                    # (the firmware ran it as an unknown command); ask again.
+                    break
             if got:
                 return got
         return []
@@ -172,5 +182,10 @@ class ConnectionMixin:
         self._events.append(message)
         self.transcript.write("Note", message)
         if self.on_event is not None:
-            self.on_event(message)
+            try:
+                self.on_event(message)
+            except (OSError, ValueError):
+                # A display that can no longer write (a closed pipe, a terminal that hung up)
+                # must not stop the host: the note may be the one before the cancel sequence.
+                pass
 

@@ -29,9 +29,13 @@ restarted may have run before it; they are sent again and reported in
 
 One thread does everything (send, read, timers); :meth:`Host.pause`,
 :meth:`Host.resume` and :meth:`Host.cancel` only set flags, so they may be
-called from another thread or a signal handler. Ctrl-C while streaming
-(SIGINT, when streaming runs in the main thread) is turned into a clean
-cancel; a second Ctrl-C sends ``M112``.
+called from another thread or a signal handler. While streaming in the main
+thread, every signal that would end the process short of SIGKILL — SIGINT
+(Ctrl-C), SIGTERM (``kill``, a service manager), SIGHUP (the terminal
+closed), SIGQUIT — is turned into a clean cancel (the lines in flight finish,
+then the cancel sequence turns heaters, fan and motors off); a second one
+sends ``M112``. Any other exception that ends the stream (a display that can
+no longer write, say) also sends the cancel sequence before it propagates.
 
 The class is assembled from one mixin per responsibility:
 :mod:`machine_io.connection` (port, banner, handshake, queries),
@@ -114,7 +118,9 @@ class Host(StreamingMixin, InterruptsMixin, ReportingMixin, ResendMixin, Connect
         self._events: list[str] = []
         self._banner_seen = False
         self.interrupted = False
-        """True once Ctrl-C (SIGINT) cancelled a stream."""
+        """True once a signal (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT) cancelled a stream."""
+        self.interrupted_by: str | None = None
+        """Name of the first signal that cancelled a stream (``"SIGTERM"``...), or None."""
         self._reset_counters()
 
     # ----------------------------------------------------------------- public control

@@ -1,10 +1,14 @@
-"""Leaving and re-entering the stream: cancel, emergency stop, pause, Ctrl-C, reconnect.
+"""Leaving and re-entering the stream: cancel, emergency stop, pause, stop signals, reconnect.
 
 A cancel finishes the lines in flight and sends the cancel sequence; a pause
 parks the machine and restores its state on resume; after a dropped link or
 a firmware restart the stream resumes after the last acknowledged command
 (what the host cannot know there is listed in the :mod:`machine_io.host`
-docstring). Mixed into :class:`machine_io.host.Host`.
+docstring). Every signal that stops a process short of SIGKILL
+(:data:`STOP_SIGNALS`: Ctrl-C, ``kill``, a closed terminal, Ctrl-\\) is a
+cancel, and a second one an emergency stop: a host that simply died would
+leave the heaters on with the motion stopped mid-layer. Mixed into
+:class:`machine_io.host.Host`.
 """
 
 from __future__ import annotations
@@ -25,7 +29,13 @@ from machine_io.session import Progress
 from machine_io.transport import LineReader
 from printability.errors import PrinterError
 
-__all__ = ["InterruptsMixin"]
+__all__ = ["STOP_SIGNALS", "InterruptsMixin"]
+
+# Signals that end a process unless handled (SIGKILL and SIGSTOP cannot be): each one cancels
+# the stream cleanly (lines in flight finish, then the cancel sequence), a second one sends M112.
+STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
+    if hasattr(signal, name))
 
 
 class InterruptsMixin:
@@ -33,9 +43,7 @@ class InterruptsMixin:
 
     def _finish_cancel(self) -> None:
         if self._emergency.is_set():
-            self._send_emergency()
-            if self._stop_reason is None:
-                self._stop_reason = "emergency stop (M112)"
+            self._emergency_stop_now()
             return
         if self._stop_reason is None:
             self._stop_reason = "cancelled"
@@ -46,12 +54,38 @@ class InterruptsMixin:
             self._write(b"M108\n")  # Marlin's emergency parser breaks a heating wait
             self.transcript.write("Send", "M108")
         self._drain(self.config.reply_timeout * 2)
+        if self._emergency.is_set():  # a second signal while the lines in flight finished
+            self._emergency_stop_now()
+            return
         if self._fatal:
             return
         before = self._program_acked()
         self._inject(self.config.cancel_gcode, before)
+        last = len(self._frames) - 1
         # The cancel sequence is sent even though _cancel is set: it is not program text.
         self._drain(self.config.reply_timeout * 4)
+        if self._emergency.is_set():
+            self._emergency_stop_now()
+        elif (self.config.cancel_gcode and self._acked < last and not self._restarted
+              and not self._fatal):
+            # The printer did not take the cancel sequence in time (a long command still
+            # running, a link that stopped answering): M112 goes through Marlin's emergency
+            # parser even with a full queue, and a halted printer has its heaters off.
+            self._note(f"the cancel sequence was not acknowledged within "
+                       f"{self.config.reply_timeout * 4:g} s")
+            self._emergency_stop_now()
+
+    def _emergency_stop_now(self) -> None:
+        self._send_emergency()
+        if self._stop_reason is None or self._stop_reason == "cancelled":
+            self._stop_reason = "emergency stop (M112)"
+
+    def _leave_safe(self) -> None:
+        """Cancel after an exception nobody expected ended the stream (a display that cannot
+        write, a bug in a callback): the printer must not be left heating mid-layer."""
+        self._cancel.set()
+        with contextlib.suppress(Exception):
+            self._finish_cancel()
 
     def _send_emergency(self) -> None:
         with contextlib.suppress(Exception):
@@ -128,12 +162,24 @@ class InterruptsMixin:
                                      "the firmware restarted (start banner) in the middle of "
                                      "the print")
             return False
+        acked = self._program_acked()
+        if acked == self._acked_at_reconnect:
+            self._reconnects_in_row += 1
+        else:
+            self._acked_at_reconnect, self._reconnects_in_row = acked, 1
+        if self._reconnects_in_row > self.config.max_reconnects:
+            self._stop_reason = self._reconnect_failure = (
+                f"the {'link dropped' if reopen else 'firmware restarted'} "
+                f"{self._reconnects_in_row} times in a row without a command being acknowledged "
+                f"in between (limit {self.config.max_reconnects}): the printer is resetting in "
+                f"a loop (power supply, firmware crash) or another program holds the port")
+            return False
         self._reconnects += 1
         if reopen:
             self._note("the link was lost: reconnecting")
             if not self._reopen(timeout):
-                self._stop_reason = (f"the link was lost and the port could not be reopened "
-                                     f"within {timeout:g} s")
+                self._stop_reason = self._reconnect_failure = (
+                    f"the port could not be reopened within {timeout:g} s")
                 return False
         restarted = self._restarted or self._wait_banner(self.config.banner_timeout)
         self._restarted = False
@@ -177,23 +223,33 @@ class InterruptsMixin:
         self._last_rx = time.monotonic()
         return True
 
-    def _install_sigint(self) -> Any:
+    def _install_signals(self) -> dict[int, Any]:
+        """Turn each of :data:`STOP_SIGNALS` into a cancel while streaming (main thread only:
+        Python runs handlers there); returns the handlers to put back."""
         if threading.current_thread() is not threading.main_thread():
-            return None
+            return {}
 
         def handler(signum: int, frame_: Any) -> None:
+            # Only flags: the streaming loop sees them within a tenth of a second, and a
+            # handler that wrote to the port could cut a line in half.
             self.interrupted = True
+            if self.interrupted_by is None:
+                self.interrupted_by = signal.Signals(signum).name
             if self._cancel.is_set():
                 self._emergency.set()
             self._cancel.set()
 
-        try:
-            return signal.signal(signal.SIGINT, handler)
-        except ValueError:
-            return None
+        previous: dict[int, Any] = {}
+        for signum in STOP_SIGNALS:
+            try:
+                previous[signum] = signal.signal(signum, handler)
+            except (ValueError, OSError):
+                continue
+        return previous
 
     @staticmethod
-    def _restore_sigint(previous: Any) -> None:
-        if previous is not None:
-            with contextlib.suppress(ValueError):
-                signal.signal(signal.SIGINT, previous)
+    def _restore_signals(previous: dict[int, Any]) -> None:
+        for signum, handler in previous.items():
+            with contextlib.suppress(ValueError, OSError):
+                # None: the handler was not set from Python; the default is what it did.
+                signal.signal(signum, signal.SIG_DFL if handler is None else handler)

@@ -56,11 +56,16 @@ class ReportingMixin:
             tuple(self._injected), tuple(self._events), dict(self.temperatures),
             tuple(self._in_doubt))
 
+    def in_flight(self) -> tuple[int, ...]:
+        """Program commands (0-based) sent but not acknowledged when the stream stopped: each
+        may or may not have run, which a resume hint must say."""
+        return tuple(self._owner[k] for k in range(self._acked + 1, self._max_sent + 1)
+                     if self._owner[k] >= 0)
+
     def _where(self, report: StreamReport) -> str:
         program = self._program
         n = report.acknowledged
-        in_flight = [self._owner[k] for k in range(self._acked + 1, self._max_sent + 1)
-                     if self._owner[k] >= 0]
+        in_flight = list(self.in_flight())
         if n == 0:
             text = "No command of the file was acknowledged"
         else:

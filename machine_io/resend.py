@@ -36,6 +36,19 @@ class _Sent:
     size: int
     seq: int
     long: bool
+    heating: bool = False  # a heating wait (M109, M190, M191)
+
+
+# Marlin's DEFAULT_KEEPALIVE_INTERVAL, s: how often a firmware with HOST_KEEPALIVE_FEATURE
+# says "busy:" while a command blocks, until an M113 S<n> changes it.
+_MARLIN_KEEPALIVE_INTERVAL = 2.0
+# Replies already waiting that _take_waiting handles before transmitting: a board that never
+# stops talking must not keep the host from sending (or from noticing a cancel).
+_MAX_WAITING = 256
+_M113_S = re.compile(r"\bS\s*(\d+(?:\.\d*)?)", re.IGNORECASE)
+_HEATING_WAITS = frozenset({"M109", "M190", "M191"})
+# Replies a firmware sends because of the lines it was sent: they restart the silence clock.
+_ALIVE = frozenset({"ok", "resend", "busy", "error", "start", "action"})
 
 
 class _Stop(Exception):
@@ -85,6 +98,21 @@ class ResendMixin:
         self._error_last_line: int | None = None
         self._timeout_seq = -(10**9)
         self._cancel_done = False
+        # Host keepalive (Marlin's "busy:" lines while a command blocks): once seen, a long
+        # command's silence means a lost line or ok, not a slow command (see _current_timeout).
+        self._keepalive_seen = False
+        self._keepalive_off = False  # the file sent M113 S0
+        self._keepalive_interval = _MARLIN_KEEPALIVE_INTERVAL
+        self._last_busy: float | None = None
+        self._keepalive_gap = 0.0
+        self._reconnects_in_row = 0
+        self._acked_at_reconnect = -1
+        self._reconnect_failure: str | None = None
+        # Temperature lines: a heating wait's reports (Marlin marks them " W:") show the
+        # firmware at work; auto-reports (M155) come whatever happened to the lines in flight.
+        self._autoreport_seen = False
+        self._wait_reports_marked = False
+        self._probed = 0  # line a silent long command was last retransmitted from (probe)
 
     def _send_ahead(self) -> bool:
         mode = self.config.mode
@@ -113,7 +141,10 @@ class ResendMixin:
         data = self._frames[number]
         self._seq += 1
         code = command_code(self._texts[number])
-        self._outstanding.append(_Sent(number, len(data), self._seq, code in LONG_COMMANDS))
+        if code == "M113":
+            self._on_m113(self._texts[number])
+        self._outstanding.append(_Sent(number, len(data), self._seq, code in LONG_COMMANDS,
+                                       code in _HEATING_WAITS))
         self._out_bytes += len(data)
         self.transcript.write("Send", data[:-1].decode("utf-8", errors="replace"))
         self._write(data)
@@ -138,15 +169,40 @@ class ResendMixin:
             self._acked_reliable = number
         self._timeouts_in_row = 0
 
+    def _alive(self, reply: Reply) -> bool:
+        """Whether ``reply`` shows the firmware at work on the lines in flight, which
+        restarts the silence clock.
+
+        Unsolicited lines do not: a firmware that auto-reports its temperatures
+        (M155) or positions says something every second or two whatever became
+        of the line in flight, and counting those lines kept the host waiting
+        for ever for an ``ok`` that was lost. A temperature report counts during
+        a heating wait (the wait's own reports), when it is marked as one
+        (Marlin's `` W:``) or no auto-report has been seen.
+        """
+        kind = reply.kind
+        if kind in _ALIVE:
+            return True
+        if kind != "temperature":
+            return False
+        if " W:" in reply.text:
+            self._wait_reports_marked = True
+            return True
+        if not any(s.heating for s in self._outstanding):
+            self._autoreport_seen = True
+            return False
+        return not self._autoreport_seen
+
     def _handle(self, reply: Reply, now: float) -> None:
         kind = reply.kind
-        self._last_rx = now
+        if self._alive(reply):
+            self._last_rx = now
         if kind == "ok":
             self._on_ok(reply)
         elif kind == "resend":
             self._on_resend(reply.number or 0, now)
         elif kind == "busy":
-            pass  # alive: the clock was restarted above
+            self._on_busy(now)  # alive: the clock was restarted above
         elif kind == "error":
             self._on_error(reply.text)
         elif kind == "start":
@@ -232,6 +288,14 @@ class ResendMixin:
             # unanswered, the requested line was lost on the wire: rewind.
             # After a timeout, transmissions the host no longer tracks may still be answered
             # and the order tells nothing: wait a moment for the pending line's ok instead.
+            # With nothing sent after the pending line (ping-pong, or the last line of the
+            # file) the refused line is either an older transmission still being answered or
+            # the pending line itself, its line number damaged on the wire: then no ok will
+            # ever come for it. Waiting for the silence timeout instead hung the host for the
+            # long timeout (30 min) when that line was a long command (M400, G28, M109...) and
+            # for ever with a firmware that keeps talking. So the pending line gets a moment
+            # to be acknowledged and is then retransmitted: if it had run after all, the
+            # firmware refuses the copy (line numbers), and nothing runs twice.
             newest = pending[-1].seq
             older = [s for s in self._outstanding if s.number > number and s.seq < newest]
             newer = [s for s in self._outstanding if s.number > number and s.seq > newest]
@@ -240,7 +304,7 @@ class ResendMixin:
                 if older:
                     self._outstanding.remove(older[0])
                     self._out_bytes -= older[0].size
-                elif ghosts and newer and self._deferred is None:
+                elif self._deferred is None:
                     self._deferred = (number, now + self.config.confirm_timeout)
                 self._stale += 1
                 return
@@ -323,18 +387,28 @@ class ResendMixin:
             self._note("the printer asked to cancel")
             self.cancel()
 
-    def _on_silence(self, now: float) -> None:
-        """Nothing heard for the timeout: retransmit from the first unacknowledged line."""
-        self._timeouts += 1
-        self._timeouts_in_row += 1
+    def _on_silence(self, now: float, *, probe: bool = False) -> None:
+        """Nothing heard for the timeout: retransmit from the first unacknowledged line.
+
+        A ``probe`` (see :meth:`_probe_due`) retransmits the same way but does
+        not count towards ``max_timeouts``: the firmware may only be busy.
+        """
         first = self._acked + 1
+        if probe:
+            self._probed = first
+            self.transcript.write("Note", f"a long command is silent: retransmitting from line "
+                                          f"{first} in case it was lost")
+        else:
+            self._timeouts += 1
+            self._timeouts_in_row += 1
         if self._timeouts_in_row > self.config.max_timeouts:
             self._stop_reason = (
                 f"the printer stopped answering (no reply for "
                 f"{self._timeouts_in_row} × {self._current_timeout():g} s)")
             self._failed = True
             raise _Stop
-        self.transcript.write("Note", f"timeout: retransmitting from line {first}")
+        if not probe:
+            self.transcript.write("Note", f"timeout: retransmitting from line {first}")
         self._timeout_seq = self._seq
         self._outstanding.clear()
         self._out_bytes = 0
@@ -343,10 +417,66 @@ class ResendMixin:
         self._rewind_seq = self._seq + 1
         self._next = min(self._next, first)
 
+    def _on_busy(self, now: float) -> None:
+        if self._last_busy is not None:
+            self._keepalive_gap = max(self._keepalive_gap, now - self._last_busy)
+        self._last_busy = now
+        self._keepalive_seen = True
+
+    def _on_m113(self, text: str) -> None:
+        """The file sets the keepalive interval (``M113 S<s>``; ``S0`` turns it off)."""
+        m = _M113_S.search(text)
+        if m is None:
+            return
+        seconds = float(m.group(1))
+        self._keepalive_off = seconds <= 0
+        if seconds > 0:
+            self._keepalive_interval = seconds
+
     def _current_timeout(self) -> float:
-        if any(s.long for s in self._outstanding):
-            return self.config.long_timeout
-        return self.config.reply_timeout
+        """Silence after which the lines in flight are taken as unanswered, s.
+
+        A long command (homing, heating, a dwell, M400) may keep a firmware
+        silent for minutes, so it gets ``long_timeout``, unless the firmware has
+        shown that it says ``busy:`` while it works: then silence for a few
+        keepalive intervals means that the line or its ``ok`` was lost, and
+        waiting ``long_timeout`` for it (30 min) would only look like a hang.
+        Retransmitting is safe either way: a line that did arrive is refused as
+        a duplicate (line numbers).
+        """
+        if not any(s.long for s in self._outstanding):
+            return self.config.reply_timeout
+        if self._keepalive_known() and not (any(s.heating for s in self._outstanding)
+                                            and self._autoreport_seen
+                                            and not self._wait_reports_marked):
+            # (A heating wait whose reports cannot be told from auto-reports keeps the long
+            # timeout: its silence is not seen.)
+            return self._keepalive_limit()
+        return self.config.long_timeout
+
+    def _keepalive_known(self) -> bool:
+        return ((self._keepalive_seen or self.firmware.busy_protocol)
+                and not self._keepalive_off)
+
+    def _keepalive_limit(self) -> float:
+        return min(self.config.long_timeout,
+                   max(self.config.reply_timeout, self.config.keepalive_timeout,
+                       3.0 * self._keepalive_gap, 4.0 * self._keepalive_interval))
+
+    def _probe_due(self, now: float) -> bool:
+        """A long command has been silent for the keepalive limit, and the firmware has not
+        shown whether it sends keepalives: retransmit once, uncounted.
+
+        The line may have been lost on the wire, and without this the host would
+        wait ``long_timeout`` (30 min) to find out; if the firmware is only busy
+        (no keepalive), it refuses the copy as a duplicate when it reads it.
+        Klipper does not check line numbers, so it never gets a copy.
+        """
+        return (self._probed != self._acked + 1
+                and now >= self._last_rx + self._keepalive_limit()
+                and any(s.long for s in self._outstanding)
+                and not self._keepalive_known()
+                and not self.firmware.name.lower().startswith("klipper"))
 
     def _take_waiting(self) -> None:
         """Handle every reply already received, before transmitting.
@@ -355,7 +485,9 @@ class ResendMixin:
         now, it finds nothing outstanding and is dropped, instead of being taken
         for the ``ok`` of the next line (which would let the host run ahead).
         """
-        while self._reader.pending() or self._port.in_waiting:
+        for _ in range(_MAX_WAITING):
+            if not (self._reader.pending() or self._port.in_waiting):
+                return
             text = self._readline(0.0)
             if text is None:
                 return
@@ -398,6 +530,9 @@ class ResendMixin:
             return
         if self._outstanding and now >= self._last_rx + self._current_timeout():
             self._on_silence(now)
+            self._last_rx = now
+        elif self._outstanding and self._probe_due(now):
+            self._on_silence(now, probe=True)
             self._last_rx = now
         elif not self._outstanding:
             self._last_rx = now

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,10 +42,21 @@ class HostConfig:
     handshake_timeout, handshake_attempts
         Per-attempt wait for the ``M110`` reply, s, and the number of attempts.
     reply_timeout
-        Silence after which an unanswered line is retransmitted, s. Any line
-        from the firmware (``busy:``, temperatures) restarts the clock.
+        Silence after which an unanswered line is retransmitted, s. Any reply
+        to the lines in flight (``ok``, ``busy:``, ``Resend``, errors, a heating
+        wait's temperature reports) restarts the clock; temperature auto-reports
+        (M155) do not, or a lost ``ok`` would be waited for for ever.
     long_timeout
         The same for long commands (homing, heating waits, dwell...), s.
+    keepalive_timeout
+        The same for long commands once the firmware has shown that it sends
+        ``busy:`` keepalives while it works (Marlin's HOST_KEEPALIVE_FEATURE),
+        s; at least four keepalive intervals (an ``M113 S<n>`` in the file sets
+        the interval, ``M113 S0`` turns this off and ``long_timeout`` applies).
+        Before the firmware has shown whether it sends keepalives, a long
+        command silent this long is retransmitted once without counting as a
+        timeout (the line may have been lost; if it was not, the firmware
+        refuses the copy by its line number).
     resend_ok_timeout
         A ``Resend`` not followed by ``ok`` within this time is treated as if
         it had been (firmwares that never send it), s.
@@ -71,6 +83,10 @@ class HostConfig:
         angle, E, modes and feed rate are restored if it is not empty.
     reconnect_timeout
         After the link drops, keep trying to reopen the port this long, s (0: never).
+    max_reconnects
+        Reconnections (a dropped link, a firmware restart) in a row with no
+        command acknowledged between them before giving up: a board in a boot
+        loop would otherwise be reconnected to for ever.
     home_on_restore
         After a firmware restart, home X and Y before travelling back.
     end_barrier
@@ -86,6 +102,7 @@ class HostConfig:
     handshake_attempts: int = 3
     reply_timeout: float = 5.0
     long_timeout: float = 1800.0
+    keepalive_timeout: float = 10.0
     resend_ok_timeout: float = 1.0
     confirm_timeout: float = 0.5
     max_resends: int = 10
@@ -97,6 +114,7 @@ class HostConfig:
     cancel_gcode: tuple[str, ...] = DEFAULT_CANCEL_GCODE
     pause_gcode: tuple[str, ...] = ()
     reconnect_timeout: float = 30.0
+    max_reconnects: int = 5
     home_on_restore: bool = True
     end_barrier: bool = True
 
@@ -104,12 +122,13 @@ class HostConfig:
         object.__setattr__(self, "mode", STREAM_MODES.check(self.mode))
         object.__setattr__(self, "error_policy", EXTRUDER_ERROR_POLICIES.check(self.error_policy))
         for name in ("banner_timeout", "handshake_timeout", "reply_timeout", "long_timeout",
-                     "resend_ok_timeout", "confirm_timeout", "reconnect_timeout"):
+                     "keepalive_timeout", "resend_ok_timeout", "confirm_timeout",
+                     "reconnect_timeout"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v >= 0):
                 raise InputError(f"{name} must be a non-negative number of seconds; got {v!r}")
         for name in ("baud", "handshake_attempts", "max_resends", "max_timeouts", "rx_buffer",
-                     "max_window", "max_line_length"):
+                     "max_window", "max_line_length", "max_reconnects"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise InputError(f"{name} must be a positive integer; got {v!r}")
@@ -146,13 +165,23 @@ class Progress:
 
     @property
     def eta(self) -> float | None:
-        """Remaining time, s: the file's own motion estimate, rescaled by the pace so far."""
+        """Remaining time, s: the file's own motion estimate, rescaled by the pace so far.
+
+        None while unknown: before a second has passed or a command was
+        acknowledged, and when the estimate is not a finite non-negative number
+        (a file whose feed rates make its motion time overflow).
+        """
+        if self.total and self.done >= self.total:
+            return 0.0
         remaining = self.seconds_total - self.seconds_done
+        eta: float | None = None
         if self.seconds_done > 1.0 and self.elapsed > 1.0:
-            return remaining * (self.elapsed / self.seconds_done)
-        if self.total and self.done and self.elapsed > 1.0:
-            return self.elapsed * (self.total - self.done) / self.done
-        return None
+            eta = remaining * (self.elapsed / self.seconds_done)
+        elif self.total and self.done and self.elapsed > 1.0:
+            eta = self.elapsed * (self.total - self.done) / self.done
+        if eta is None or not math.isfinite(eta) or eta < 0:
+            return None
+        return eta
 
 
 @dataclass(frozen=True)

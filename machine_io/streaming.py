@@ -52,8 +52,9 @@ class StreamingMixin:
         -------
         StreamReport
             ``completed`` True when every command was acknowledged. A cancel
-            (Ctrl-C, :meth:`cancel`, ``//action:cancel``) returns a report with
-            ``stopped`` set.
+            (:meth:`cancel`, ``//action:cancel``, or a stop signal: Ctrl-C,
+            SIGTERM, SIGHUP, SIGQUIT, see :attr:`interrupted_by`) returns a
+            report with ``stopped`` set.
 
         Raises
         ------
@@ -82,7 +83,7 @@ class StreamingMixin:
         if restore:
             self._inject(restore_commands(state_at(program, start),
                                           home_xy=self.config.home_on_restore), start)
-        previous_handler = self._install_sigint()
+        previous_handlers = self._install_signals()
         last_progress = 0.0
         last_save = t0
         resume_path = Path(resume_file) if resume_file is not None else None
@@ -120,7 +121,9 @@ class StreamingMixin:
                     self._note(f"the link failed: {exc}")
                     if self._reconnect(reopen=True):
                         continue
-                    failure = f"the link to the printer failed ({exc}) and could not be reopened"
+                    failure = (f"the link to the printer failed ({exc})"
+                               + (f": {self._reconnect_failure}" if self._reconnect_failure
+                                  else " and could not be reopened"))
                     break
                 now = time.monotonic()
                 if on_progress is not None and now - last_progress >= 0.1:
@@ -129,8 +132,16 @@ class StreamingMixin:
                 if resume_path is not None and now - last_save >= 2.0:
                     last_save = now
                     self._save_resume(resume_path)
+        except BaseException:
+            # Whatever ended the loop unexpectedly (a progress callback that raised, a
+            # KeyboardInterrupt outside the main thread's handler), the printer is heating
+            # with its motion stopped: leave it safe before the exception goes on.
+            if not self._cancel_done:
+                self._cancel_done = True
+                self._leave_safe()
+            raise
         finally:
-            self._restore_sigint(previous_handler)
+            self._restore_signals(previous_handlers)
         report = self._report(program, mode, time.monotonic() - t0, failure)
         if on_progress is not None:
             on_progress(self._progress("done"))

@@ -28,6 +28,9 @@ _NOOP = frozenset({
     "M111", "M119", "M31", "M42", "M420", "M149", "M851", "M593", "M486", "M999", "G21",
     "G29", "G10", "G11", "M0", "M1", "M16", "M23", "M24", "M25", "M27", "M28", "M29", "M30",
     "M32", "M33", "M928", "M413", "M163", "M164", "M141", "M191", "M150", "M600",
+    # M108 (break a heating wait: the host's cancel sends it raw; the emergency parser acts on
+    # it), M113 (host keepalive interval), M21 (init the SD card), which Marlin all accept
+    "M108", "M113", "M21",
 })
 _KLIPPER_MACROS = re.compile(r"^[A-Z][A-Z0-9]*_[A-Z0-9_]+\b|^(?:PAUSE|RESUME|CANCEL_PRINT|"
                              r"STATUS|RESTART|FIRMWARE_RESTART|SAVE_CONFIG)\b", re.IGNORECASE)

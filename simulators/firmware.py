@@ -317,6 +317,33 @@ class Firmware(LineProtocolMixin, PlannerMixin, CommandsMixin):
             self._emit(self._temp_report())
             self._autoreport_at = self.now + self._autoreport
 
+    # ================================================================ status
+    def status_line(self) -> str:
+        """One line for a person watching: commands executed, position, layer, heaters.
+
+        ``"1234 commands executed; at X10.00 Y20.00 Z0.60 C90.00; layer 3 (Z0.60) of 3
+        deposited; hotend 210/210 °C, bed 60/60 °C; 2 resends"``: the position is the
+        logical one (what M114 reports) of the last move planned, the layer counts the
+        heights material was laid at so far, up to the nozzle's.
+        """
+        s, m = self.stats, self.motion
+        pos = m.logical()
+        letters = ("X", "Y", "Z", m.letter) if m.letter else ("X", "Y", "Z")
+        at = " ".join(f"{k}{float(v):.2f}" for k, v in zip(letters, pos, strict=False))
+        # The layer the nozzle is in, counted among the layers material was laid in so far.
+        zs = sorted(self.deposition.layers)
+        native_z = float(m.pos[2])
+        below = [z for z in zs if z <= native_z + 1e-6]
+        layer = (f"layer {len(below)} (Z{float(pos[2]):.2f}) of {len(zs)} deposited" if zs
+                 else "nothing deposited yet")
+        t = self.now
+        heat = (f"hotend {self.hotend.temp(t):.0f}/{self.hotend.target:.0f} °C, "
+                f"bed {self.bed.temp(t):.0f}/{self.bed.target:.0f} °C")
+        extra = f"; {s.resends} resends" if s.resends else ""
+        if self.halted:
+            extra += "; HALTED (M112 or kill): needs a reset"
+        return f"{s.executed} commands executed; at {at}; {layer}; {heat}{extra}"
+
     # ================================================================ record
     def record(self) -> DepositionRecord:
         """The deposition record so far (layers, executed log, statistics, MMC findings).

@@ -31,6 +31,9 @@ _STRTOL = re.compile(r"\s*[+-]?\d+")
 # Marlin's EMERGENCY_PARSER: "M112" alone on a line (after an optional line number) kills at
 # once, even while the command queue is full.
 _EMERGENCY = re.compile(rb"\s*(?:N\s*-?\d+\s*)?M112\s*(?:[*;].*)?$")
+# ... and "M108" ends a heating wait (M109/M190) at once: how a host cancelling a print gets
+# the printer out of a long heat-up to send it the cancel sequence.
+_BREAK_WAIT = re.compile(rb"\s*(?:N\s*-?\d+\s*)?M108\s*(?:[*;].*)?$")
 
 
 def checksum(data: bytes | str) -> int:
@@ -110,8 +113,17 @@ class LineProtocolMixin:
                 self.executed.append((None, "M112"))
                 self._kill()
                 return
+            if _BREAK_WAIT.match(self._ep_line):
+                self._break_heating_wait()
             self._ep_line.clear()
             start = m.end()
+
+    def _break_heating_wait(self) -> None:
+        """M108 through the emergency parser: a heating wait in progress ends now (its
+        command finishes and is acknowledged; the heater keeps its target)."""
+        wait = getattr(self, "_wait", None)
+        if wait is not None and wait[0] == "time" and len(wait) > 2 and wait[2] == "temp":
+            self._wait = ("time", self.now)
 
     # ================================================================ reading
     def _read_lines(self) -> bool:

@@ -29,6 +29,7 @@ timing a host sees is the model's, not Python's.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import select
@@ -162,6 +163,11 @@ class Link:
                 t = min(t, self._due(*self._held[0]))
             return max(0.0, min(t - now, 0.05))
 
+    def status(self) -> str:
+        """The firmware's one-line status (see :meth:`Firmware.status_line`)."""
+        with self.lock:
+            return self.firmware.status_line()
+
     def close(self) -> None:
         """Finish: let the planner drain (for the print time) and write the record if asked."""
         with self.lock:
@@ -176,6 +182,16 @@ class _Server:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
+        self.on_event: Callable[[str], None] | None = None
+        """Called from the server thread with a one-line message when a host connects or
+        leaves and when the board resets; it must not block (``printability simulate``
+        hands the lines to its main thread)."""
+
+    def _event(self, message: str) -> None:
+        if self.on_event is not None:
+            # A message must never stop the printer.
+            with contextlib.suppress(Exception):
+                self.on_event(message)
 
     def start(self) -> _Server:
         self._thread = threading.Thread(target=self._guarded, name=type(self).__name__,
@@ -265,12 +281,15 @@ class PtyServer(_Server):
             events = poller.poll(wait * 1000)
             hup = any(ev & select.POLLHUP for _, ev in events)
             if hup:
+                if self.connected:
+                    self._event(f"the host closed {self.path}")
                 self.connected = False
                 time.sleep(0.01)  # nobody has the port open: POLLHUP is level-triggered
                 continue
             if not self.connected:
                 self.connected = True
                 link.connect()
+                self._event(f"a host opened {self.path}: the board resets and greets it")
             if any(ev & select.POLLIN for _, ev in events):
                 try:
                     data = os.read(self.master, 4096)
@@ -282,6 +301,7 @@ class PtyServer(_Server):
             out = link.read_available()
             if link.disconnected:  # the board reset: same port, new banner
                 link.connect()
+                self._event("the board reset (disconnect fault) and greets the host again")
                 out += link.read_available()
             if out:
                 self._write(out)
@@ -333,11 +353,15 @@ class TcpServer(_Server):
             r, _, _ = select.select([self.sock], [], [], 0.05)
             if not r:
                 continue
-            conn, _ = self.sock.accept()
+            conn, peer = self.sock.accept()
             with conn:
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 link.connect()
+                self._event(f"a host connected from {peer[0]}:{peer[1]}: the board resets and "
+                            f"greets it")
                 self._serve(conn)
+                self._event("the board reset (disconnect fault) and dropped the connection"
+                            if link.disconnected else "the host disconnected")
 
     def _serve(self, conn: socket.socket) -> None:
         link = self.link

@@ -1,16 +1,20 @@
 """``printability stream``: send a G-code file to a printer over serial (DESIGN.md §4).
 
 A thin adapter over :class:`machine_io.Host`: parse options, connect, stream
-with a progress bar, print a summary. Ctrl-C cancels cleanly (the lines in
-flight finish, then the cancel sequence leaves the printer safe); a second
-Ctrl-C sends M112. ``kill -USR1 <pid>`` pauses, ``kill -USR2 <pid>`` resumes.
+with a progress display (a live bar in a terminal, a line at each quarter of
+the file otherwise), print a summary. Ctrl-C, ``kill`` (SIGTERM), a closed
+terminal (SIGHUP) and SIGQUIT all cancel cleanly (the lines in flight finish,
+then the cancel sequence leaves the printer safe); a second one sends M112.
+``kill -USR1 <pid>`` pauses, ``kill -USR2 <pid>`` resumes.
 """
 
 from __future__ import annotations
 
+import contextlib
 import signal
-import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -18,6 +22,39 @@ from printability.cli.common import choices_help as _choices
 from printability.options import EXTRUDER_ERROR_POLICIES, STREAM_MODES
 
 __all__ = ["register", "stream_command"]
+
+_SIGNAL_WORDS = {"SIGINT": "Ctrl-C", "SIGHUP": "SIGHUP (the terminal closed)"}
+
+
+@contextlib.contextmanager
+def _stopped_before_streaming(port: str) -> Iterator[Callable[[], None]]:
+    """Until the host streams (and handles them itself), a stop signal ends the command with
+    a clear error instead of killing it silently: nothing of the file has been sent yet.
+    Ctrl-C keeps Python's KeyboardInterrupt (the CLI's "interrupted"). Yields ``release``,
+    which puts the previous handlers back once the stream has ended (the host restores these
+    ones when it returns)."""
+    from machine_io.interrupts import STOP_SIGNALS
+    from printability.errors import PrinterError
+
+    def stop(signum: int, frame: Any) -> None:
+        name = signal.Signals(signum).name
+        raise PrinterError(f"stopped by {_SIGNAL_WORDS.get(name, name)} before streaming "
+                           f"began; nothing of the file was sent to the printer on {port}")
+
+    previous: dict[int, Any] = {}
+    for signum in STOP_SIGNALS:
+        if signum != signal.SIGINT:
+            previous[signum] = signal.signal(signum, stop)
+
+    def release() -> None:
+        while previous:
+            signum, handler = previous.popitem()
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+
+    try:
+        yield release
+    finally:
+        release()
 
 
 def stream_command(
@@ -50,10 +87,12 @@ def stream_command(
     json_out: Path | None = typer.Option(None, "--json",  # noqa: B008
                                          help="Write the stream report as JSON here."),
     progress: bool = typer.Option(True, "--progress/--no-progress",
-                                  help="Show a progress bar."),
+                                  help="Show progress on stderr: a live bar in a terminal, a "
+                                       "line at each quarter of the file otherwise."),
 ) -> None:
     """Stream GCODE to the printer on PORT: line numbers and checksums, resends, busy-aware
-    timeouts, pause (SIGUSR1) / resume (SIGUSR2) / cancel (Ctrl-C)."""
+    timeouts, pause (SIGUSR1) / resume (SIGUSR2) / cancel (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT:
+    heaters, fan and motors off)."""
     from machine_io import Host, HostConfig, Transcript, load_program
     from machine_io.display import stream_progress
     from printability.cli.common import write_json_atomic
@@ -70,12 +109,16 @@ def stream_command(
                              f"line {resume_from} (its last command is on line "
                              f"{program.source_lines[-1]})")
         start = later[0]
-    show = progress and sys.stderr.isatty()
+    display = None  # while streaming, events go above the progress bar
 
     def event(message: str) -> None:
-        typer.echo(f"printability: {message}", err=True)
+        if display is not None:
+            display.note(f"printability: {message}")
+        else:
+            typer.echo(f"printability: {message}", err=True)
 
-    with Host(port, config=config, transcript=Transcript(log), on_event=event) as host:
+    with _stopped_before_streaming(port) as release_signals, \
+            Host(port, config=config, transcript=Transcript(log), on_event=event) as host:
         firmware = host.connect()
         typer.echo(f"printer: {firmware.name or 'unnamed firmware'}"
                    f" (ADVANCED_OK {'yes' if firmware.advanced_ok else 'no'}; axes "
@@ -84,11 +127,12 @@ def stream_command(
         for signum, action in ((signal.SIGUSR1, host.pause), (signal.SIGUSR2, host.resume)):
             previous[signum] = signal.signal(signum, lambda *_a, f=action: f())
         try:
-            with stream_progress(gcode.name, enabled=show) as on_progress:
+            with stream_progress(gcode.name, enabled=progress) as display:
                 report = host.stream(program, start=start, restore=resume_from is not None
-                                     and restore, on_progress=on_progress,
-                                     resume_file=None)
+                                     and restore, on_progress=display, resume_file=None)
         finally:
+            release_signals()
+            display = None
             for signum, handler in previous.items():
                 signal.signal(signum, handler)
     if json_out is not None:
@@ -104,7 +148,19 @@ def stream_command(
              f"stream {gcode} --port {port} --resume-from "
              f"{program.source_lines[report.acknowledged]}"
              if report.acknowledged < len(program) else "every command was acknowledged")
-    why = "cancelled by Ctrl-C" if host.interrupted else report.stopped
+    doubt = host.in_flight()
+    if doubt:
+        where += (f" (commands {doubt[0] + 1}–{doubt[-1] + 1} were sent but not acknowledged: "
+                  f"they may or may not have run)")
+    why = report.stopped
+    if host.interrupted_by is not None:
+        name = host.interrupted_by
+        why = f"cancelled by {_SIGNAL_WORDS.get(name, name)}"
+        if report.stopped == "cancelled":
+            why += (f"; the cancel sequence ({', '.join(config.cancel_gcode)}) was sent after "
+                    f"the lines in flight")
+        elif report.stopped:
+            why += f"; {report.stopped}"
     raise PrinterError(f"{why}: {summary}; {where}")
 
 
