@@ -257,6 +257,21 @@ def _put_move(buf, n, x, y, with_z, z, xd):  # pragma: no cover
     return put_fixed(buf, n + 2, z, xd)
 
 
+_G1 = np.array([71, 49, 32], np.uint8)  # "G1 "
+
+
+@numba.njit(cache=True, nogil=True)
+def _put_rotation(buf, n, letter, c, d_ang, rot_feed):  # pragma: no cover
+    """A rotation-only move, ``G1 <letter><c>`` and `` F<rot_feed>`` (degrees per minute)
+    when ``rot_feed`` is positive, at ``buf[n:]``: the new end, or -1 when declined."""
+    n = _put(buf, n, _G1)
+    n = _put(buf, n, letter)
+    n = put_fixed(buf, n, c, d_ang)
+    if n < 0 or rot_feed <= 0:
+        return n
+    return _put_feed(buf, n, rot_feed)
+
+
 @numba.njit(cache=True, nogil=True)
 def _put_feed(buf, n, f):  # pragma: no cover
     """`` F`` and ``format_number(f, 3)`` at ``buf[n:]`` (40 bytes free)."""
@@ -375,7 +390,6 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
     pending = -1
     unret = -1  # an un-retract since the last travel, where a turn goes before it
     unret_mv = -1
-    was_g1 = np.array([71, 49, 32], np.uint8)  # "G1 "
     g92 = np.array([71, 57, 50, 32, 69], np.uint8)  # "G92 E"
     note = np.array([32, 59, 32, 112, 114, 105, 110, 116, 97, 98, 105, 108, 105, 116, 121,
                      58, 32, 119, 97, 115, 32], np.uint8)  # " ; printability: was "
@@ -457,14 +471,11 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                         u_c = c
                         inserted += 1
                     else:
-                        ns = _put(scratch, ns, was_g1)
-                        ns = _put(scratch, ns, letter)
-                        ns = put_fixed(scratch, ns, c, d_ang)
-                        if rot_feed > 0 and math.isfinite(feed):
-                            ns = _put_feed(scratch, ns, rot_feed)
-                            if ns < 0:
-                                return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                            need_f = True
+                        need_f = rot_feed > 0 and math.isfinite(feed)
+                        ns = _put_rotation(scratch, ns, letter, c, d_ang,
+                                           rot_feed if need_f else 0.0)
+                        if ns < 0:
+                            return DECLINED, buf, n, changed, inserted, rotary, turned, li
                         ns = _put_eol(scratch, ns, data, e0, e1)
                         inserted += 1
                     rotary += 1
@@ -647,15 +658,12 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                                         first_end = ns
                                     ns = _put_eol(scratch, ns, data, e0, e1)
                                 else:
-                                    ns = _put(scratch, ns, was_g1)
-                                    ns = _put(scratch, ns, letter)
-                                    ns = put_fixed(scratch, ns, c, d_ang)
-                                    if rot_feed > 0 and math.isfinite(feed):
-                                        ns = _put_feed(scratch, ns, rot_feed)
-                                        if ns < 0:
-                                            return (DECLINED, buf, n, changed, inserted,
-                                                    rotary, turned, li)
-                                        need_f = True
+                                    need_f = rot_feed > 0 and math.isfinite(feed)
+                                    ns = _put_rotation(scratch, ns, letter, c, d_ang,
+                                                       rot_feed if need_f else 0.0)
+                                    if ns < 0:
+                                        return (DECLINED, buf, n, changed, inserted,
+                                                rotary, turned, li)
                                     if first_end < 0:
                                         first_end = ns
                                     ns = _put_eol(scratch, ns, data, e0, e1)
@@ -758,13 +766,9 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
             with_f = rot_feed > 0 and math.isfinite(u_feed)
             buf = _reserve(buf, n, (ub - pos) + 200 + len(letter))
             n = _copy(buf, n, data, pos, ua)
-            n = _put(buf, n, was_g1)
-            n = _put(buf, n, letter)
-            n = put_fixed(buf, n, u_c, d_ang)
-            if with_f:
-                n = _put_feed(buf, n, rot_feed)
-                if n < 0:
-                    return DECLINED, buf, n, changed, inserted, rotary, turned, u_line
+            n = _put_rotation(buf, n, letter, u_c, d_ang, rot_feed if with_f else 0.0)
+            if n < 0:
+                return DECLINED, buf, n, changed, inserted, rotary, turned, u_line
             ue0, ue1 = _eol(data, ua, ub)
             n = _put_eol(buf, n, data, ue0, ue1)
             if with_f and fa < 0:

@@ -66,7 +66,12 @@ from gcode.printtime import PrintTime, estimate_print_time, format_duration
 from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
 from printability._arrays import take_rows
-from printability.errors import FileFormatError, InputError, PrintabilityOSError
+from printability.errors import (
+    FileFormatError,
+    InputError,
+    NozzleTooLargeError,
+    PrintabilityOSError,
+)
 from printability.machine import Machine, parse_machine
 from printability.motion.orientation import (
     OrientationOptions,
@@ -125,6 +130,9 @@ class PostprocessOptions:
         release the GIL) while the planner runs, and that the planner's footprint
         tests are shared out over; None: one per CPU core, at most 4. The output
         is the same bytes on any number.
+    allow_empty
+        Write the file even when the nozzle prints none of the part (by default
+        that is a :class:`NozzleTooLargeError` and the file is left alone).
     output_name
         New final file name to hand back to the slicer through the
         ``<gcode>.output_name`` file (PrusaSlicer ≥ 2.4 convention); None
@@ -145,6 +153,7 @@ class PostprocessOptions:
     output_name: str | None = None
     workers: int | None = None
     orientation: OrientationOptions = field(default_factory=OrientationOptions)
+    allow_empty: bool = False
 
 
 @dataclass(frozen=True)
@@ -381,8 +390,23 @@ def postprocess_bytes(
     # A round nozzle no larger than the one the file was sliced for lays the slicer's
     # own beads: each is inside G by construction (G is their union), so nothing moves.
     slicer_d = envs.get("nozzle_diameter") or _config_value(data, "nozzle_diameter")
-    narrow_beads = bool(nozzle.is_round and (slicer_d is None
-                                             or 2 * nozzle.footprints[0].a <= slicer_d + 1e-9))
+    if slicer_d is None:
+        # the file does not say (Cura's, or a settings block cut off): the beads it plans are
+        # about its nozzle's width (Cura's lines are the nozzle's size, PrusaSlicer's 1.05-1.1x)
+        ext = moves["is_extrusion"]
+        planned = moves["width"][ext & np.isfinite(moves["width"])]
+        if not planned.size and ext.any():
+            # no width comments (Cura): the widths its E gives
+            from gcode.rotary import width_from_e
+
+            mm = moves[ext]
+            length = np.hypot(mm["x1"] - mm["x0"], mm["y1"] - mm["y0"])
+            h = np.where(mm["layer"] >= 0, heights[np.maximum(mm["layer"], 0)], 0.2) \
+                if len(heights) else np.full(len(mm), 0.2)
+            ok = length > 1e-6
+            planned = width_from_e(mm["e"][ok] / length[ok], h[ok], float(fd))
+        slicer_d = float(np.median(planned)) if planned.size else 0.0
+    narrow_beads = bool(nozzle.is_round and 2 * nozzle.footprints[0].a <= slicer_d + 1e-9)
     period = nozzle.symmetry_period
     turns = machine.kind == "ttr" and period != 0.0
     wopts = WriterOptions(letter=letter, period=period if turns else 0.0,
@@ -511,6 +535,15 @@ def postprocess_bytes(
     body = out.chunks
     body.insert(first_cmd, block)
     result_bytes = b"".join(body)
+    n_part = sum(r.moves for r in reports)
+    # (printed_length is a difference of sums: a few 1e-13 mm when nothing is printed)
+    if n_part and not options.allow_empty and \
+            not any(r.printed_length > 1e-6 for r in reports):
+        raise NozzleTooLargeError(
+            f"{path}: nozzle {nozzle.spec} on machine {machine.spec} can print none of the "
+            f"part's {n_part} extrusions (every feature is narrower than the nozzle lays at any "
+            "orientation); the file is left unchanged. Choose a smaller nozzle, or pass "
+            "--allow-empty to write it anyway")
     elapsed = time.perf_counter() - t_start
     res = PostprocessResult(
         path=path, output=path, already_processed=False, lines_in=len(lines),

@@ -40,6 +40,10 @@ def postprocess_command(
     unwind: bool = typer.Option(False, "--unwind/--no-unwind",
                                 help="Cabled head: bring the rotary axis back towards 0 on "
                                      "travel moves."),
+    allow_empty: bool = typer.Option(False, "--allow-empty",
+                                     help="Write the file even when the nozzle prints none "
+                                          "of the part (by default: an error, file "
+                                          "untouched)."),
     e_policy: str = typer.Option("width", "--e-policy",
                                  help=choices_help(E_POLICIES, "How E follows the bead width.")),
     filament_diameter: float | None = typer.Option(None, "--filament-diameter",
@@ -70,7 +74,7 @@ def postprocess_command(
         feed_policy=FEED_POLICIES.check(feed_policy) if feed_policy else None,
         letter=letter, unwind=unwind, e_policy=E_POLICIES.check(e_policy),
         filament_diameter=filament_diameter, layer_height=layer_height, output_name=output_name,
-        workers=workers or None,
+        workers=workers or None, allow_empty=allow_empty,
     )
     res = postprocess_file(gcode, options=opts, output=output)
     if quiet:
