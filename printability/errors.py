@@ -17,6 +17,7 @@ __all__ = [
     "PrintabilityOSError",
     "PrinterError",
     "ResourceError",
+    "StoppedError",
     "UnknownOptionError",
 ]
 
@@ -84,3 +85,8 @@ class ResourceError(PrintabilityError, MemoryError):
 
 class PrinterError(PrintabilityError, RuntimeError):
     """The printer (or the link to it) reported an error or stopped answering."""
+
+
+class StoppedError(PrintabilityError, InterruptedError):
+    """The process was asked to stop (SIGTERM, SIGHUP, SIGQUIT) while it worked; what it was
+    writing is left as it was."""

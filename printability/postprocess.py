@@ -52,6 +52,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 import tempfile
 import time
 from collections.abc import Mapping
@@ -71,6 +72,7 @@ from printability.errors import (
     InputError,
     NozzleTooLargeError,
     PrintabilityOSError,
+    ResourceError,
 )
 from printability.machine import Machine, parse_machine
 from printability.motion.orientation import (
@@ -81,6 +83,7 @@ from printability.motion.orientation import (
 from printability.nozzle import Nozzle, parse_nozzle
 from printability.options import E_POLICIES, FEED_POLICIES
 from printability.rewrite import eol_of, first_command_line, rewrite
+from printability.settings import DEFAULT_SETTINGS
 from printability.targets import layer_targets
 
 __all__ = [
@@ -629,8 +632,18 @@ def _planned_widths(g, seg, seg_move, filament_diameter) -> np.ndarray:
 # ----------------------------------------------------------------- files
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)  # read it (there is no other portable way) and put it back
+    os.umask(mask)
+    return mask
+
+
 def _write_atomic(path: Path, content: bytes) -> None:
-    """Write ``content`` to ``path`` through a temporary file in the same directory."""
+    """Write ``content`` to ``path`` through a temporary file in the same directory.
+
+    The file keeps the mode of the one it replaces; a new file gets 0666 less the umask, as
+    ``open`` would give it (the temporary file is created 0600).
+    """
     directory = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
     try:
@@ -640,6 +653,9 @@ def _write_atomic(path: Path, content: bytes) -> None:
             os.fsync(fh.fileno())
         try:
             mode = path.stat().st_mode & 0o7777
+        except OSError:
+            mode = 0o666 & ~_umask()
+        try:
             os.chmod(tmp, mode)
         except OSError:
             pass
@@ -683,6 +699,23 @@ def postprocess_file(
     PrintabilityOSError, FileFormatError, InputError
     """
     p = Path(path)
+    try:
+        st = p.stat()
+    except OSError as exc:
+        raise PrintabilityOSError(f"{p}: cannot read the G-code file "
+                                  f"({exc.strerror or exc})") from None
+    if not stat.S_ISREG(st.st_mode):
+        # a device or a FIFO: /dev/zero would be read until memory runs out, a FIFO waited on
+        raise PrintabilityOSError(f"{p}: not a regular file (expected a G-code file a slicer "
+                                  "wrote)")
+    # the reader, the plan and the output hold about 25 bytes per byte of G-code (measured:
+    # 4.7 GB for a 200 MB file)
+    need = 25 * st.st_size
+    if need > DEFAULT_SETTINGS.max_memory:
+        raise ResourceError(f"{p}: {st.st_size / 2**20:.0f} MiB of G-code would need about "
+                            f"{need / 2**30:.1f} GiB of memory to post-process, more than the "
+                            f"limit of {DEFAULT_SETTINGS.max_memory / 2**30:.1f} GiB (half this "
+                            "machine's memory); split the print or use a larger machine")
     try:
         data = p.read_bytes()
     except OSError as exc:

@@ -6,16 +6,19 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from printability.errors import PrintabilityOSError
+from printability.errors import PrintabilityOSError, StoppedError
 from printability.options import Registry
 
-__all__ = ["choices_help", "progress_callback", "write_atomic", "write_json_atomic"]
+__all__ = ["choices_help", "progress_callback", "stop_signals_raise", "write_atomic",
+           "write_json_atomic"]
 
 
 def choices_help(registry: Registry, text: str) -> str:
@@ -69,3 +72,29 @@ def progress_callback(description: str, *, enabled: bool) -> Iterator[Callable[[
             bar.update(task, completed=done, total=total)
 
         yield update
+
+
+@contextlib.contextmanager
+def stop_signals_raise(what: str) -> Iterator[None]:
+    """Within the block, SIGTERM, SIGHUP and SIGQUIT raise :class:`StoppedError`.
+
+    Their default action ends the process at once, leaving a half-written temporary file
+    beside the user's; raised as an exception, the atomic write's cleanup runs and the user
+    reads one paragraph (``what`` says what is left as it was). Only in the main thread
+    (signal handlers can be set nowhere else).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, _frame: object) -> None:
+        raise StoppedError(f"stopped by {signal.Signals(signum).name}; {what}")
+
+    names = ("SIGTERM", "SIGHUP", "SIGQUIT")
+    old = {sig: signal.signal(sig, stop) for sig in (getattr(signal, n) for n in names
+                                                      if hasattr(signal, n))}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)

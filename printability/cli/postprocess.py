@@ -12,7 +12,7 @@ from pathlib import Path
 
 import typer
 
-from printability.cli.common import choices_help
+from printability.cli.common import choices_help, stop_signals_raise
 from printability.options import E_POLICIES, FEED_POLICIES, SERVER_POLICIES
 
 __all__ = ["postprocess_command", "register"]
@@ -76,7 +76,8 @@ def postprocess_command(
         filament_diameter=filament_diameter, layer_height=layer_height, output_name=output_name,
         workers=workers or None, allow_empty=allow_empty,
     )
-    res = postprocess_file(gcode, options=opts, output=output)
+    with stop_signals_raise(f"{gcode} is unchanged"):
+        res = postprocess_file(gcode, options=opts, output=output)
     if quiet:
         return
     if res.already_processed:
