@@ -249,7 +249,19 @@ def _pair(where: str, key: str, value: Any) -> tuple[float, float]:
     return (_num(where, key, value[0]), _num(where, key, value[1]))
 
 
+#: The finest rotary step the analysis samples, degrees (360 000 orientations a turn).
+MIN_ANGLE_STEP = 1e-3
+
+
 def _rotary_range(where: str, lo: float, hi: float, step: float) -> None:
+    for name, v in (("min", lo), ("max", hi), ("step", step)):
+        if not math.isfinite(v):
+            raise InputError(f"{where}: rotary {name} must be a finite number of degrees; "
+                             f"found {v!r}")
+    if step < MIN_ANGLE_STEP:
+        raise InputError(f"{where}: rotary step must be at least {MIN_ANGLE_STEP:g} degrees "
+                         f"(finer would sample more orientations than fit in memory); found "
+                         f"{step:g}")
     if hi < lo:
         raise InputError(f"{where}: rotary max ({hi:g}°) is below min ({lo:g}°)")
     if hi - lo > 360.0 + 1e-9:

@@ -284,14 +284,29 @@ def _number(spec: str, key: str, text: str) -> float:
     value = float(text)
     if not math.isfinite(value):
         raise InputError(f"nozzle spec {spec!r}: {key}= must be finite; found {text!r}")
+    if key in ("angle", "rot") and abs(value) > 3600:
+        raise InputError(f"nozzle spec {spec!r}: {key}= expects an angle within ±3600 degrees; "
+                         f"found {text!r}")
+    if key in ("x", "y") and abs(value) > NOZZLE_SIZE_RANGE[1]:
+        raise InputError(f"nozzle spec {spec!r}: {key}= expects an offset within "
+                         f"±{NOZZLE_SIZE_RANGE[1]:g} mm; found {text!r}")
     return value
 
 
+#: Orifice sizes a nozzle may have, mm: a micrometre to a metre (below, the analysis's
+#: grids and footprints overflow; above, no printer).
+NOZZLE_SIZE_RANGE = (1e-3, 1e3)
+
+
 def _positive(spec: str, key: str, value: float) -> float:
+    lo, hi = NOZZLE_SIZE_RANGE
     if value <= 0:
         raise InputError(
             f"nozzle spec {spec!r}: {key} must be a positive length in mm; found {value:g}"
         )
+    if not (lo <= value <= hi) and key != "scale":
+        raise InputError(f"nozzle spec {spec!r}: {key} must be between {lo:g} and {hi:g} mm; "
+                         f"found {value:g}")
     return value
 
 

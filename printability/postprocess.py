@@ -99,6 +99,13 @@ __all__ = [
 _PROCESSED = re.compile(rb"; printability \S+ postprocessed this file")
 
 
+def _check_range(name: str, value: float, lo: float, hi: float, unit: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not (lo <= value <= hi):
+        unit = " " + unit if unit else ""
+        raise InputError(f"{name} expects a number from {lo:g} to {hi:g}{unit}; found {value!r}")
+
+
 @dataclass(frozen=True)
 class PostprocessOptions:
     """What to post-process for.
@@ -157,6 +164,15 @@ class PostprocessOptions:
     workers: int | None = None
     orientation: OrientationOptions = field(default_factory=OrientationOptions)
     allow_empty: bool = False
+
+    def __post_init__(self) -> None:
+        _check_range("tolerance", self.tolerance, 0.0, 1.0, "mm")
+        _check_range("chord tolerance", self.chord_tolerance, 1e-6, 1.0, "mm")
+        _check_range("angle decimals", self.angle_decimals, 0, 9, "")
+        for key, value in (("filament diameter", self.filament_diameter),
+                           ("layer height", self.layer_height)):
+            if value is not None:
+                _check_range(key, value, 1e-3, 100.0, "mm")
 
 
 @dataclass(frozen=True)

@@ -64,14 +64,18 @@ class Settings:
     def __post_init__(self) -> None:
         if not (self.resolution > 0):
             raise InputError(f"resolution must be a positive length in mm; got {self.resolution!r}")
-        if self.angle_step is not None and not (0 < self.angle_step <= 360):
+        if not (self.resolution < 1e4):
+            raise InputError(f"resolution must be a finite length below 10 m; got "
+                             f"{self.resolution!r}")
+        if self.angle_step is not None and not (1e-3 <= self.angle_step <= 360):
             raise InputError(
-                f"angle_step must be in (0, 360] degrees; got {self.angle_step!r}"
+                f"angle_step must be in [0.001, 360] degrees; got {self.angle_step!r}"
             )
         if self.quad_segs < 1:
             raise InputError(f"quad_segs must be at least 1; got {self.quad_segs!r}")
-        if self.max_memory <= 0:
-            raise InputError(f"max_memory must be positive; got {self.max_memory!r}")
+        if not (0 < self.max_memory <= 1 << 50):
+            raise InputError(f"max_memory must be positive and at most 1 PiB; got "
+                             f"{self.max_memory!r}")
         if self.workers < 1:
             raise InputError(f"workers must be at least 1; got {self.workers!r}")
 

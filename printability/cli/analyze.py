@@ -105,8 +105,8 @@ def parse_size(text: str) -> int:
         value = float(t[: len(t) - len(unit)])
     except ValueError:
         value = -1.0
-    if not value > 0 or value * _UNITS[unit] < 1:
-        raise InputError(f"--max-memory expects a positive size such as 512M or 8G; "
+    if not value > 0 or value * _UNITS[unit] < 1 or not value * _UNITS[unit] <= 1 << 50:
+        raise InputError(f"--max-memory expects a positive size up to 1P such as 512M or 8G; "
                          f"found {text!r}")
     return int(value * _UNITS[unit])
 

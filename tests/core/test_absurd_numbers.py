@@ -1,0 +1,53 @@
+"""Numbers that are not finite or out of any sensible range are refused where they enter (a
+CLI option, a nozzle or machine SPEC), with one paragraph and exit 1, never a traceback or an
+allocation of terabytes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+SQUARE = "POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0))"
+ELLIPSE = "ellipse:major=0.8,minor=0.3"
+
+
+@pytest.mark.parametrize(("args", "match"), [
+    (["--resolution", "inf"], "resolution"),
+    (["-n", "circle:d=1e-300"], "between 0.001 and 1000 mm"),
+    (["-n", "circle:d=1e300"], "between 0.001 and 1000 mm"),
+    (["-n", f"{ELLIPSE},angle=1e308", "-m", "ttr"], "within ±3600 degrees"),
+    (["-n", f"{ELLIPSE},x=1e300", "-m", "ttr"], "offset within"),
+    (["-m", "ttr:min=nan"], "rotary min must be a finite"),
+    (["-m", "ttr:step=1e-9", "-n", ELLIPSE], "rotary step must be at least 0.001"),
+    (["-n", ELLIPSE, "-m", "ttr", "--angle-step", "1e-9"], "angle_step"),
+    (["--max-memory", "1e400G"], "--max-memory expects"),
+])
+def test_analyze_refuses(tmp_path, args, match):
+    src = tmp_path / "square.wkt"
+    src.write_text(SQUARE)
+    r = subprocess.run([sys.executable, "-m", "printability", "analyze", str(src), *args,
+                        "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1, r.stderr
+    assert "Traceback" not in r.stderr
+    assert match in " ".join(r.stderr.split())
+
+
+@pytest.mark.parametrize(("opt", "value"), [("--tolerance", "nan"), ("--tolerance", "5"),
+                                            ("--layer-height", "inf")])
+def test_postprocess_refuses(prusa_short_copy, opt, value):
+    before = prusa_short_copy.read_bytes()
+    r = subprocess.run([sys.executable, "-m", "printability", "postprocess",
+                        str(prusa_short_copy), "-n", ELLIPSE, opt, value],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode in (1, 2) and "Traceback" not in r.stderr, r.stderr
+    assert prusa_short_copy.read_bytes() == before
+
+
+@pytest.fixture
+def prusa_short_copy(shared_data, tmp_path):
+    src = (shared_data / "gcode" / "prusaslicer_2.7.4_marlin2_arcs.gcode").read_bytes()
+    p = tmp_path / "part.gcode"
+    p.write_bytes(src[:src.index(b";LAYER_CHANGE", 20000)])
+    return p
