@@ -60,10 +60,18 @@ _FIXED = tuple(f"%.{d}f" for d in range(18))
 
 
 def format_number(value: float, decimals: int) -> str:
-    """``value`` with at most ``decimals`` decimals, trailing zeros dropped, never ``-0``."""
+    """``value`` with at most ``decimals`` decimals, trailing zeros dropped, never ``-0``.
+
+    Raises
+    ------
+    ValueError
+        ``value`` is not finite: the last guard that no ``inf``/``nan`` reaches a file.
+    """
     # printf-style with a prebuilt spec: the same correctly rounded digits as
     # f"{value:.{decimals}f}" at half the cost (it runs for every number written)
     text = _FIXED[decimals] % value if 0 <= decimals < 18 else f"{value:.{decimals}f}"
+    if text[-1] in "fn":  # "inf", "nan": no firmware reads them as we would mean them
+        raise ValueError(f"refusing to write a non-finite number ({value!r}) into G-code")
     if "." in text:
         text = text.rstrip("0").rstrip(".")
     if text in ("-0", ""):

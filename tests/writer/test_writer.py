@@ -221,3 +221,9 @@ def test_edit_e_is_edit_line_in_one_pass(raw, value, add):
 @pytest.mark.parametrize("raw", [b"G1 X1 Y2\n", b"N12 G1 X1 E2*57\n", b"M104 S200\n"])
 def test_edit_e_leaves_other_lines_to_edit_line(raw):
     assert edit_e(raw, lambda v: "0") is None
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])
+def test_no_non_finite_number_is_ever_written(value):
+    with pytest.raises(ValueError, match="non-finite"):
+        format_number(value, 3)
