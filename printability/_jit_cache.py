@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["KERNEL_MODULES", "check"]
+__all__ = ["KERNEL_MODULES", "check", "cold"]
 
 KERNEL_MODULES = (
     "gcode/_lexer.py",
@@ -60,6 +60,31 @@ def _stamp(root: str) -> str:
             continue
         rows.append(f"{rel} {st.st_mtime_ns} {st.st_size}")
     return "\n".join(rows) + "\n"
+
+
+#: Kernel modules every command that reads G-code or geometry compiles first.
+_FIRST_NEEDED = ("gcode/_lexer.py", "gcode/_machine.py")
+
+
+def cold(root: str | None = None) -> bool:
+    """True when this installation's in-tree kernel caches are empty (the first run after
+    an install or an upgrade compiles the kernels: about a minute). False when they exist or
+    cannot be written in the tree (numba then caches elsewhere, which this cannot see)."""
+    if root is None:
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    for rel in _FIRST_NEEDED:
+        folder = os.path.join(root, os.path.dirname(rel))
+        stem = os.path.splitext(os.path.basename(rel))[0] + "."
+        cache = os.path.join(folder, "__pycache__")
+        try:
+            names = os.listdir(cache)
+        except OSError:
+            names = []
+        if not os.access(folder, os.W_OK):
+            return False
+        if not any(n.startswith(stem) and n.endswith(".nbi") for n in names):
+            return True
+    return False
 
 
 def check(root: str | None = None) -> bool:

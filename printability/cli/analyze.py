@@ -6,7 +6,12 @@ from pathlib import Path
 
 import typer
 
-from printability.cli.common import choices_help, progress_callback, write_json_atomic
+from printability.cli.common import (
+    choices_help,
+    note_default_layer_height,
+    progress_callback,
+    write_json_atomic,
+)
 from printability.options import ENGINES
 
 __all__ = ["register"]
@@ -74,6 +79,7 @@ def analyze_command(
     layers = load_layers(input, layer_height=layer_height, first_layer_height=first_layer_height,
                          units=units, fit=fit, map_scale=map_scale, clip=box,
                          keep_largest=keep_largest, settings=settings)
+    note_default_layer_height(input, layer_height)  # once the mesh is read
     if layers_spec is not None:
         layers = select_layers(layers, layers_spec)
     for warning in layers.meta.get("warnings", ()):

@@ -17,8 +17,8 @@ from typing import Any
 from printability.errors import PrintabilityOSError, StoppedError
 from printability.options import Registry
 
-__all__ = ["choices_help", "progress_callback", "stop_signals_raise", "write_atomic",
-           "write_json_atomic"]
+__all__ = ["choices_help", "note_default_layer_height", "progress_callback",
+           "stop_signals_raise", "write_atomic", "write_json_atomic"]
 
 
 def choices_help(registry: Registry, text: str) -> str:
@@ -98,3 +98,15 @@ def stop_signals_raise(what: str) -> Iterator[None]:
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+
+
+_MESHES = (".stl", ".3mf", ".obj")
+
+
+def note_default_layer_height(path: object, layer_height: float | None) -> None:
+    """Say on stderr when a mesh is sliced at the default layer height the user did not give."""
+    if layer_height is None and str(path).lower().endswith(_MESHES):
+        from printability.sources.mesh import DEFAULT_LAYER_HEIGHT
+
+        print(f"printability: {path}: slicing at {DEFAULT_LAYER_HEIGHT:g} mm layers "
+              "(give --layer-height to choose)", file=sys.stderr)

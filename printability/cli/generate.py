@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from printability.cli.common import choices_help
+from printability.cli.common import choices_help, note_default_layer_height
 from printability.options import FEED_POLICIES
 
 __all__ = ["generate_command", "register"]
@@ -50,6 +50,7 @@ def generate_command(
                            unwind=unwind, relative_e=not absolute_e, center=center)
     res = generate_file(input, output, nozzle, machine, options=opts, layer_height=layer_height,
                         first_layer_height=first_layer_height, units=units)
+    note_default_layer_height(input, layer_height)  # once the mesh is read
     typer.echo(f"{res.path}: {res.layers} layers, {res.lines} lines, "
                f"{res.extruded_length:.1f} mm extruded, {res.dropped_length:.2f} mm the nozzle "
                f"cannot print, {res.rotations} turns; {res.elapsed:.2f} s")

@@ -92,6 +92,10 @@ def _command():
     return typer.main.get_command(app)
 
 
+#: Subcommands that compile kernels on a first run.
+_COMPILING = frozenset({"analyze", "postprocess", "generate", "demo", "serve"})
+
+
 def run(argv: list[str] | None = None) -> int:
     """Run the CLI in this process; returns the process exit code.
 
@@ -99,6 +103,15 @@ def run(argv: list[str] | None = None) -> int:
     printability's own errors reach us as exceptions and become one paragraph
     on stderr with exit code 1. Anything else is a bug and keeps its traceback.
     """
+    args = sys.argv[1:] if argv is None else list(argv)
+    if args[:1] and args[0] in _COMPILING and "--help" not in args:
+        from printability._jit_cache import cold
+
+        if cold():
+            # the first run after an install or an upgrade: say why nothing happens
+            print("printability: first run since installing: compiling the kernels (about a "
+                  "minute, once; 'printability warmup' does it ahead)", file=sys.stderr,
+                  flush=True)
     try:
         _command()(args=argv, prog_name="printability", standalone_mode=True)
     except SystemExit as exc:

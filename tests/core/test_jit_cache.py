@@ -66,3 +66,18 @@ def test_a_tree_it_cannot_write_is_left_alone(tmp_path):
     finally:
         for d in root.rglob("__pycache__"):
             d.chmod(0o700)
+
+
+def test_cold_cache_is_seen(tmp_path):
+    from printability._jit_cache import cold
+
+    for rel in ("gcode/_lexer.py", "gcode/_machine.py"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("")
+    assert cold(str(tmp_path))  # a new install: nothing compiled yet
+    cache = tmp_path / "gcode" / "__pycache__"
+    cache.mkdir()
+    (cache / "_lexer.lex_kernel-10.py311.nbi").write_bytes(b"")
+    assert cold(str(tmp_path))
+    (cache / "_machine._machine_impl-60.py311.nbi").write_bytes(b"")
+    assert not cold(str(tmp_path))

@@ -224,3 +224,12 @@ def test_rotation_only_moves_carry_their_own_feed_and_the_next_move_restores_it(
             assert any(x.startswith("F") for x in nxt)
             seen += 1
     assert seen > 0
+
+
+def test_cli_says_which_layer_height_a_mesh_is_sliced_at(tmp_path, shared_data):
+    out = tmp_path / "cube.gcode"
+    r = subprocess.run([sys.executable, "-m", "printability", "generate",
+                        str(shared_data / "stl" / "CalibrationCube.stl"), "-n", "circle:d=0.4",
+                        "-m", "xy", "-o", str(out)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "slicing at 0.2 mm layers (give --layer-height to choose)" in " ".join(r.stderr.split())
