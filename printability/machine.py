@@ -449,7 +449,9 @@ def parse_machine(spec: str | Machine) -> Machine:
     if head.lower() not in MACHINE_KINDS.choices and head in profiles and not rest:
         return load_machine_file(profiles[head])
     if head.lower() not in ("xy", "ttr"):
-        choices = ", ".join(["xy", "ttr", *profiles, "FILE.toml"])
+        # (a profile named like a kind, ttr.toml, is reached by its path, not its name)
+        choices = ", ".join(["xy", "ttr", *(n for n in profiles if n not in ("xy", "ttr")),
+                             "FILE.toml"])
         raise InputError(f"unknown machine {head!r}; expected one of: {choices}")
     kind = head.lower()
     params: dict[str, str] = {}
