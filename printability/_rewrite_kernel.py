@@ -281,6 +281,17 @@ def _put_feed(buf, n, f):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
+def _copy_with_feed(buf, n, data, a, gb, b, f):  # pragma: no cover
+    """The line ``data[a:b]`` with `` F<f>`` put at ``gb`` (the end of its words): the
+    feed a rotation-only move before it would otherwise leave in force; -1 when declined."""
+    n = _copy(buf, n, data, a, gb)
+    n = _put_feed(buf, n, f)
+    if n < 0:
+        return n
+    return _copy(buf, n, data, gb, b)
+
+
+@numba.njit(cache=True, nogil=True)
 def _eol(data, a, b):  # pragma: no cover
     """(start, end) of the line ending of ``data[a:b]`` as :func:`printability.rewrite.eol_of`
     gives it; (-1, -1) stands for an added ``\\n``."""
@@ -533,11 +544,9 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
                     ns = _copy(scratch, ns, data, gb, b)
                     changed += 1
                 elif need_f:
-                    ns = _copy(scratch, ns, data, a, gb)
-                    ns = _put_feed(scratch, ns, feed)
+                    ns = _copy_with_feed(scratch, ns, data, a, gb, b, feed)
                     if ns < 0:
                         return DECLINED, buf, n, changed, inserted, rotary, turned, li
-                    ns = _copy(scratch, ns, data, gb, b)
                     changed += 1
                 else:
                     ns = _copy(scratch, ns, data, a, b)
@@ -772,11 +781,9 @@ def rewrite_kernel(data, starts, pos0, ev_line, ev_move, ev_code,
             ue0, ue1 = _eol(data, ua, ub)
             n = _put_eol(buf, n, data, ue0, ue1)
             if with_f and fa < 0:
-                n = _copy(buf, n, data, ua, gb)
-                n = _put_feed(buf, n, u_feed)
+                n = _copy_with_feed(buf, n, data, ua, gb, ub, u_feed)
                 if n < 0:
                     return DECLINED, buf, n, changed, inserted, rotary, turned, u_line
-                n = _copy(buf, n, data, gb, ub)
                 changed += 1
             else:
                 n = _copy(buf, n, data, ua, ub)
