@@ -27,8 +27,10 @@ from printability.layers import Layer, LayerStack
 from printability.options import UNITS
 
 __all__ = [
+    "MAX_COORDINATE",
     "UNIT_MM",
     "apply_fit",
+    "check_coordinates",
     "check_memory",
     "check_positive",
     "fill_rings",
@@ -118,6 +120,24 @@ def read_bytes(path: Path, *, factor: float, limit: int, what: str) -> bytes:
         raise PrintabilityOSError(f"{path}: cannot read ({exc.strerror or exc})") from None
 
 
+#: Largest coordinate a drawing or map may hold (in its own units): beyond, areas and buffers
+#: lose every digit (1e308 overflows them); no part or map comes near it.
+MAX_COORDINATE = 1e15
+
+
+def check_coordinates(path: object, coords: np.ndarray, *, element: str | None = None) -> None:
+    """Refuse coordinates that are not finite or beyond :data:`MAX_COORDINATE`."""
+    from printability.errors import FileFormatError
+
+    a = np.asarray(coords, dtype=float)
+    bad = ~(np.abs(a) <= MAX_COORDINATE)
+    if bad.any():
+        v = a[bad].flat[0]
+        what = "out of range" if np.isfinite(v) else "not finite"
+        raise FileFormatError(path, f"a coordinate is {what} ({v:g}); expected finite numbers "
+                              f"up to {MAX_COORDINATE:g}", element=element)
+
+
 def apply_fit(geom: Any, fit: float | None) -> tuple[Any, float]:
     """Scale ``geom`` about the origin (0, 0) so its bounding box's longest side is ``fit`` mm.
 
@@ -127,6 +147,9 @@ def apply_fit(geom: Any, fit: float | None) -> tuple[Any, float]:
     """
     if fit is None:
         return geom, 1.0
+    if not (0 < fit <= MAX_COORDINATE):
+        raise InputError(f"--fit expects a size in mm above 0 and at most {MAX_COORDINATE:g}; "
+                         f"found {fit:g}")
     minx, miny, maxx, maxy = geom.bounds
     longest = max(maxx - minx, maxy - miny)
     if not longest > 0:

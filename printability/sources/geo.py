@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -56,6 +57,7 @@ from printability.layers import LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
     apply_fit,
+    check_coordinates,
     check_positive,
     planar_stack,
     read_bytes,
@@ -108,6 +110,7 @@ def _rings_polygon(path: Path, coords: Any, where: str) -> Polygon:
                                   f"ring); found {len(a)}", element=where)
         if not np.isfinite(a).all():
             raise FileFormatError(path, f"ring {k}: non-finite coordinate", element=where)
+        check_coordinates(path, a, element=f"{where} ring {k}")
         if len(a) >= 4:
             rings.append(a[:, :2])
     # Orientation is irrelevant to shapely's area and validity.
@@ -385,7 +388,10 @@ def load_wkt_layers(
         raise FileFormatError(p, "the file is empty; expected a WKT geometry such as "
                               "POLYGON ((0 0, 10 0, 10 5, 0 0))")
     try:
-        geoms = [shapely.from_wkt(text)]
+        with warnings.catch_warnings():
+            # GEOS reads "nan" and warns with its source path; the check below says it plainly
+            warnings.simplefilter("ignore", RuntimeWarning)
+            geoms = [shapely.from_wkt(text)]
     except shapely.errors.GEOSException:
         geoms = []
         for no, line in enumerate(text.splitlines(), 1):
@@ -395,6 +401,8 @@ def load_wkt_layers(
                 geoms.append(shapely.from_wkt(line.strip()))
             except shapely.errors.GEOSException as exc:
                 raise FileFormatError(p, f"expected a WKT geometry; {exc}", line=no) from None
+    for g in geoms:
+        check_coordinates(p, shapely.get_coordinates(g))
     polys = [q for g in geoms for q in polygons_of(g)]
     if not polys:
         kinds = sorted({g.geom_type for g in geoms})

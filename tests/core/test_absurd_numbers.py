@@ -51,3 +51,26 @@ def prusa_short_copy(shared_data, tmp_path):
     p = tmp_path / "part.gcode"
     p.write_bytes(src[:src.index(b";LAYER_CHANGE", 20000)])
     return p
+
+
+@pytest.mark.parametrize(("name", "text", "match"), [
+    ("nan.wkt", "POLYGON ((0 0, 10 0, 10 nan, 0 10, 0 0))", "not finite"),
+    ("inf.wkt", "POLYGON ((0 0, inf 0, 10 10, 0 10, 0 0))", "not finite"),
+    ("huge.wkt", "POLYGON ((0 0, 1e308 0, 10 10, 0 10, 0 0))", "out of range"),
+    ("huge.geojson", '{"type":"Polygon","coordinates":[[[0,0],[1e308,0],[10,10],[0,0]]]}',
+     "out of range"),
+])
+def test_drawings_with_absurd_coordinates(tmp_path, name, text, match):
+    src = tmp_path / name
+    src.write_text(text)
+    r = subprocess.run([sys.executable, "-m", "printability", "analyze", str(src),
+                        "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "Warning" not in r.stderr and match in " ".join(r.stderr.split())
+
+
+def test_fit_out_of_range(shared_data):
+    r = subprocess.run([sys.executable, "-m", "printability", "analyze",
+                        str(shared_data / "japan_110m.geojson"), "--fit", "1e308",
+                        "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1 and "--fit expects" in r.stderr
