@@ -260,8 +260,15 @@ def _slic3r_stack(path: Path, root: Any, *, units: str | None, fit: float | None
 # ---------------------------------------------------------------- ordinary drawings
 
 
+class _OutOfRange(ValueError):
+    """A curve's control points are not finite or beyond 1e15 (the message says which)."""
+
+
 def _n_bezier(ctrl: np.ndarray, tol: float, k: float) -> int:
     # max deviation of the chord polyline ≤ k·max|Δ²P| / n²  (k = 3/4 cubic, 1/4 quadratic)
+    if not (np.abs(ctrl) <= 1e15).all():
+        bad = ctrl[~(np.abs(ctrl) <= 1e15)].flat[0]
+        raise _OutOfRange("not finite" if not math.isfinite(bad) else f"out of range ({bad:g})")
     d2 = np.abs(ctrl[2:] - 2 * ctrl[1:-1] + ctrl[:-2])
     m = float(np.hypot(d2[:, 0], d2[:, 1]).max()) if len(d2) else 0.0
     return max(1, math.ceil(math.sqrt(k * m / tol))) if m > 0 else 1
@@ -373,6 +380,11 @@ def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
     except Exception as exc:  # svgelements raises many types on bad documents
         raise FileFormatError(path, f"the SVG could not be interpreted ({exc})") from None
     mm_per_px = _doc_scale(root, svg, units, warnings)
+    if not (1e-12 <= mm_per_px <= 1e12):
+        # width="1e308mm" or a viewBox of 1e308: every later length divides or overflows
+        raise FileFormatError(path, f"the document's size and viewBox give {mm_per_px:g} mm per "
+                              "user unit; expected a finite, non-zero scale (check the <svg> "
+                              "width, height and viewBox)", element="<svg>")
     canvas_w = float(svg.width) if svg.width else 0.0
     canvas_h = float(svg.height) if svg.height else 0.0
     shapes = [e for e in svg.elements() if isinstance(e, se.Shape)]
@@ -399,7 +411,13 @@ def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
             continue
         rings = []
         for sp in p.as_subpaths():
-            a, closed = _flatten_subpath(sp, se, tol)
+            try:
+                a, closed = _flatten_subpath(sp, se, tol)
+            except _OutOfRange as exc:
+                raise FileFormatError(path, f"a coordinate of this shape is {exc} (expected "
+                                      "finite numbers up to 1e15)",
+                                      element=f"<{_local(el.values.get('tag', 'path'))}> "
+                                              f"#{idx + 1}") from None
             if len(a) < 3:
                 continue
             if fill_ok:

@@ -74,3 +74,17 @@ def test_fit_out_of_range(shared_data):
                         str(shared_data / "japan_110m.geojson"), "--fit", "1e308",
                         "--no-progress"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 1 and "--fit expects" in r.stderr
+
+
+@pytest.mark.parametrize(("body", "match"), [
+    ('width="1e308mm" height="10mm" viewBox="0 0 10 10"><rect x="0" y="0" width="5" '
+     'height="5"/>', "mm per user unit"),
+    ('viewBox="0 0 10 10"><path d="M0 0 C 1e308 0 10 10 0 10 Z"/>', "out of range"),
+])
+def test_svg_with_absurd_numbers(tmp_path, body, match):
+    src = tmp_path / "bad.svg"
+    src.write_text(f'<svg xmlns="http://www.w3.org/2000/svg" {body}</svg>')
+    r = subprocess.run([sys.executable, "-m", "printability", "analyze", str(src),
+                        "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert match in " ".join(r.stderr.split())
