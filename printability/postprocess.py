@@ -106,6 +106,18 @@ def _check_range(name: str, value: float, lo: float, hi: float, unit: str) -> No
         raise InputError(f"{name} expects a number from {lo:g} to {hi:g}{unit}; found {value!r}")
 
 
+def _check_output_name(name: str) -> None:
+    """A file name for the slicer to give its output: one name, no folder, no control
+    character (the slicer renames its file to it; ``../../x`` would move it elsewhere)."""
+    bad = (not name or name in (".", "..") or "/" in name or "\\" in name
+           or any(ord(c) < 32 or ord(c) == 127 for c in name)
+           or len(name.encode("utf-8")) > 255)
+    if bad:
+        shown = name[:60].encode("unicode_escape").decode("ascii")
+        raise InputError(f"output name expects a file name (no folder, no control characters, "
+                         f"at most 255 bytes); found {shown!r}")
+
+
 @dataclass(frozen=True)
 class PostprocessOptions:
     """What to post-process for.
@@ -166,6 +178,8 @@ class PostprocessOptions:
     allow_empty: bool = False
 
     def __post_init__(self) -> None:
+        if self.output_name is not None:
+            _check_output_name(self.output_name)
         _check_range("tolerance", self.tolerance, 0.0, 1.0, "mm")
         _check_range("chord tolerance", self.chord_tolerance, 1e-6, 1.0, "mm")
         _check_range("angle decimals", self.angle_decimals, 0, 9, "")

@@ -59,3 +59,16 @@ def test_a_new_output_file_gets_the_umask_mode(prusa_short, tmp_path):
     finally:
         os.umask(old)
     assert out.stat().st_mode & 0o777 == 0o640  # as open() would make it, not mkstemp's 0600
+
+
+@pytest.mark.parametrize("name", ["../../x.gcode", "a\nb.gcode", "dir/x.gcode", ""])
+def test_output_name_must_be_a_file_name(prusa_short, tmp_path, name):
+    path = tmp_path / "part.gcode"
+    path.write_bytes(prusa_short.read_bytes())
+    before = path.read_bytes()
+    r = subprocess.run([sys.executable, "-m", "printability", "postprocess", "--nozzle",
+                        "ellipse:major=0.8,minor=0.3", "--output-name", name, str(path)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1 and "output name expects a file name" in " ".join(r.stderr.split())
+    assert path.read_bytes() == before
+    assert not (tmp_path / "part.gcode.output_name").exists()
