@@ -151,14 +151,21 @@ def _rotary_track(g, moves: np.ndarray, letter: str) -> np.ndarray:
     by_line = np.full(len(g.lines), np.nan)
     by_line[w["line"][sel]] = w["value"][sel]
     val = by_line[moves["line"]]
-    rel = (moves["flags"] & 2) != 0
-    out = np.empty(len(moves))
-    c = 0.0
-    for i, (v, r) in enumerate(zip(val.tolist(), rel.tolist(), strict=True)):
-        if v == v:  # not NaN
-            c = c + v if r else v
-        out[i] = c
-    return out
+    have = np.isfinite(val)
+    rel = have & ((moves["flags"] & 2) != 0)
+    if rel.any():  # G91 with rotary words (rare): sums, in order
+        c = np.where(have, val, 0.0)
+        out = np.empty(len(moves))
+        acc = 0.0
+        for i, (v, h, r) in enumerate(zip(c.tolist(), have.tolist(), rel.tolist(),
+                                          strict=True)):
+            if h:
+                acc = acc + v if r else v
+            out[i] = acc
+        return out
+    # absolute words: each move's coordinate is the last word's, forward-filled
+    last = np.maximum.accumulate(np.where(have, np.arange(len(moves)), -1))
+    return np.where(last >= 0, val[np.maximum(last, 0)], 0.0)
 
 
 def estimate_print_time(g, *, limits: PlannerLimits | None = None,
