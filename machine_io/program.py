@@ -27,6 +27,7 @@ from printability.errors import InputError, PrintabilityOSError
 __all__ = [
     "MachineState",
     "Program",
+    "check_line_lengths",
     "executed_as_streamed",
     "load_program",
     "parse_program",
@@ -104,7 +105,7 @@ def _decode(raw: bytes, source: str, lineno: int) -> str:
 
 
 def parse_program(data: bytes, *, source: str = "<data>",
-                  max_line_length: int = DEFAULT_MAX_LINE) -> Program:
+                  max_line_length: int | None = DEFAULT_MAX_LINE) -> Program:
     """Turn the bytes of a G-code file into a :class:`Program`.
 
     Parameters
@@ -116,6 +117,8 @@ def parse_program(data: bytes, *, source: str = "<data>",
     max_line_length
         Longest framed line the firmware accepts, bytes (Marlin's
         ``MAX_CMD_SIZE``, 96); longer commands are refused before anything is sent.
+        None: not checked here (the host checks against the firmware it meets,
+        :func:`check_line_lengths`).
 
     Raises
     ------
@@ -158,20 +161,29 @@ def parse_program(data: bytes, *, source: str = "<data>",
         lines.append(lineno)
     if not commands:
         raise InputError(f"{source}: no G-code command to send (only comments or blank lines)")
-    width = len(f"N{len(commands) + 10} *255\n")
-    for text, lineno in zip(commands, lines, strict=True):
+    seconds, axes = _estimate(commands)
+    program = Program(source, tuple(commands), tuple(lines), tuple(seconds), frozenset(axes),
+                      tuple(skipped))
+    if max_line_length is not None:
+        check_line_lengths(program, max_line_length)
+    return program
+
+
+def check_line_lengths(program: Program, max_line_length: int) -> None:
+    """Refuse the program when a command, once numbered and checksummed, is longer than
+    the firmware's line buffer (``max_line_length`` bytes): it would be cut there."""
+    width = len(f"N{len(program.commands) + 10} *255\n")
+    for text, lineno in zip(program.commands, program.source_lines, strict=True):
         size = len(text.encode()) + width
         if size > max_line_length:
             raise InputError(
-                f"{source}: line {lineno} is {size} bytes once numbered and checksummed, more "
-                f"than the firmware's {max_line_length}-byte line buffer ({text[:40]!r}…); "
-                f"nothing was sent.")
-    seconds, axes = _estimate(commands)
-    return Program(source, tuple(commands), tuple(lines), tuple(seconds), frozenset(axes),
-                   tuple(skipped))
+                f"{program.source}: line {lineno} is {size} bytes once numbered and "
+                f"checksummed, more than the firmware's {max_line_length}-byte line buffer "
+                f"({text[:40]!r}…); nothing was sent.")
 
 
-def load_program(path: str | Path, *, max_line_length: int = DEFAULT_MAX_LINE) -> Program:
+def load_program(path: str | Path, *,
+                 max_line_length: int | None = DEFAULT_MAX_LINE) -> Program:
     """Read a G-code file into a :class:`Program` (see :func:`parse_program`).
 
     Raises

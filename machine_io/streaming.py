@@ -15,7 +15,7 @@ from pathlib import Path
 
 import serial
 
-from machine_io.program import Program, restore_commands, state_at
+from machine_io.program import Program, check_line_lengths, restore_commands, state_at
 from machine_io.resend import _Stop
 from machine_io.session import Progress, StreamReport
 from printability.errors import InputError, PrinterError
@@ -69,6 +69,7 @@ class StreamingMixin:
             raise InputError(f"start must be a command index in [0, {len(program) - 1}]; "
                              f"got {start}")
         self._check_axes(program)
+        self._check_line_lengths(program)
         self._handshake(0)  # number this session's lines from 1
         if self._send_ahead() is False and self.config.mode == "send-ahead":
             self._note("send-ahead asked for, but the firmware does not report its buffer "
@@ -238,6 +239,13 @@ class StreamingMixin:
                 f"nothing was sent. Stream it to a T-T-R printer whose firmware has the axis "
                 f"(Marlin 2.1 with AXIS4_NAME '{letter}'), or regenerate the G-code for this "
                 f"machine; --no-axis-check overrides this check.")
+
+    def _check_line_lengths(self, program: Program) -> None:
+        # Marlin cuts a line past its MAX_CMD_SIZE (HostConfig.max_line_length); Klipper reads
+        # a whole line of any length from its pseudo-terminal (its own start G-code registers
+        # a rotary axis in about 100 bytes)
+        if not self.firmware.name.lower().startswith("klipper"):
+            check_line_lengths(program, self.config.max_line_length)
 
     def send_commands(self, commands: list[str] | tuple[str, ...]) -> None:
         """Send a few commands (numbered) outside a print: a console, a test."""

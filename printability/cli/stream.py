@@ -100,7 +100,8 @@ def stream_command(
 
     config = HostConfig(mode=mode, error_policy=error_policy, baud=baud, reply_timeout=timeout,
                         check_axes=axis_check, home_on_restore=home)
-    program = load_program(gcode)
+    # the line length is checked once the firmware is known (Klipper has no 96-byte limit)
+    program = load_program(gcode, max_line_length=None)
     start = 0
     if resume_from is not None:
         later = [i for i, line in enumerate(program.source_lines) if line >= resume_from]
