@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["KERNEL_MODULES", "check", "cold"]
+__all__ = ["KERNEL_MODULES", "announce_first_compile", "check"]
 
 KERNEL_MODULES = (
     "gcode/_lexer.py",
@@ -62,31 +62,6 @@ def _stamp(root: str) -> str:
     return "\n".join(rows) + "\n"
 
 
-#: Kernel modules every command that reads G-code or geometry compiles first.
-_FIRST_NEEDED = ("gcode/_lexer.py", "gcode/_machine.py")
-
-
-def cold(root: str | None = None) -> bool:
-    """True when this installation's in-tree kernel caches are empty (the first run after
-    an install or an upgrade compiles the kernels: about a minute). False when they exist or
-    cannot be written in the tree (numba then caches elsewhere, which this cannot see)."""
-    if root is None:
-        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    for rel in _FIRST_NEEDED:
-        folder = os.path.join(root, os.path.dirname(rel))
-        stem = os.path.splitext(os.path.basename(rel))[0] + "."
-        cache = os.path.join(folder, "__pycache__")
-        try:
-            names = os.listdir(cache)
-        except OSError:
-            names = []
-        if not os.access(folder, os.W_OK):
-            return False
-        if not any(n.startswith(stem) and n.endswith(".nbi") for n in names):
-            return True
-    return False
-
-
 def check(root: str | None = None) -> bool:
     """Remove the in-tree kernel caches when a kernel module changed since they were written;
     whether it removed any. ``root``: the folder holding the packages (default: this
@@ -124,3 +99,34 @@ def check(root: str | None = None) -> bool:
     except OSError:
         pass
     return removed
+
+
+def announce_first_compile(write) -> None:
+    """Call ``write(message)`` once, when the first of this project's cached kernels is
+    actually compiled in this process (a cache miss: the first run after an install or an
+    upgrade), so that the minute it takes is not silent. Nothing happens on a warm run, or
+    for a command that fails before it reaches a kernel (a bad argument gets its one-paragraph
+    error and nothing else).
+
+    Uses numba's event API: ``numba:compile`` fires only after the on-disk cache missed.
+    Imports numba (the commands that call this compile kernels anyway)."""
+    from numba.core import event
+
+    class _Once(event.Listener):
+        done = False
+
+        def on_start(self, ev) -> None:
+            if self.done:
+                return
+            disp = (ev.data or {}).get("dispatcher")
+            module = getattr(getattr(disp, "py_func", None), "__module__", "") or ""
+            if module.split(".")[0] not in ("printability", "gcode"):
+                return  # numba's own helpers (typed containers) compile on every run
+            self.done = True
+            write("printability: first run since installing: compiling the kernels (about a "
+                  "minute, once; 'printability warmup' does it ahead)")
+
+        def on_end(self, ev) -> None:
+            pass
+
+    event.register("numba:compile", _Once())

@@ -105,13 +105,11 @@ def run(argv: list[str] | None = None) -> int:
     """
     args = sys.argv[1:] if argv is None else list(argv)
     if args[:1] and args[0] in _COMPILING and "--help" not in args:
-        from printability._jit_cache import cold
+        from printability._jit_cache import announce_first_compile
 
-        if cold():
-            # the first run after an install or an upgrade: say why nothing happens
-            print("printability: first run since installing: compiling the kernels (about a "
-                  "minute, once; 'printability warmup' does it ahead)", file=sys.stderr,
-                  flush=True)
+        # the first run after an install or an upgrade: say why nothing happens, when the
+        # first kernel actually compiles (not before a bad argument's one-paragraph error)
+        announce_first_compile(lambda msg: print(msg, file=sys.stderr, flush=True))
     try:
         _command()(args=argv, prog_name="printability", standalone_mode=True)
     except SystemExit as exc:
