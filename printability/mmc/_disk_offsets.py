@@ -273,12 +273,16 @@ def _split_lines(
     # GEOS's simplifier never deletes a line's vertex 1 (its window starts at
     # index 1), so a two-vertex piece may absorb the next piece of the same ring
     # when the vertex between them was cut only for being shallow: this halves
-    # the count along arcs, where every vertex is shallow.
+    # the count along arcs, where every vertex is shallow. A ring end is never
+    # absorbed: on a triangle (ends at vertices 0 and 1) the two pieces would
+    # merge back into the closed ring, whose one-sided buffer GEOS fills (the
+    # inner band then covered all of G and P came out empty: issue #26).
+    absorbable = shallow & ~risky & ~ends
     keep_start, keep_end = [], []
     i, m = 0, len(cut_pos)
     while i < m:
         s0, e0 = cut_pos[i], nxt_cut[i]
-        if e0 - s0 == 1 and i + 1 < m and cut_ring[i + 1] == cut_ring[i] and not risky[e0]:
+        if e0 - s0 == 1 and i + 1 < m and cut_ring[i + 1] == cut_ring[i] and absorbable[e0]:
             e0 = nxt_cut[i + 1]
             i += 2
         else:

@@ -72,6 +72,7 @@ import shapely
 import shapely.affinity
 from shapely.geometry import MultiPolygon, Point, Polygon
 from shapely.geometry.base import BaseGeometry
+from shapely.ops import polylabel
 
 from printability.errors import InputError
 from printability.geometry import polygons_of, rotation_matrix
@@ -92,7 +93,7 @@ from printability.mmc._minkowski import (
     minkowski_erode,
 )
 from printability.mmc.components import angle_ranges, component_labels
-from printability.mmc.result import Components, MMCResult, MotionRestriction
+from printability.mmc.result import Components, MMCInternalError, MMCResult, MotionRestriction
 from printability.nozzle import Footprint, Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
 
@@ -231,6 +232,80 @@ def _one_angle(
     return _AngleResult(p_in, s_in, s_out)
 
 
+# ------------------------------------------------------------------- self-check
+
+#: P_inner must hold every point of G farther than this many reaches from ∂G.
+_DEEP = 2.5
+
+
+def _reach(o: _Placed) -> float:
+    """Largest distance from the nozzle origin to a point of the placed orifice, mm."""
+    if o.kind == "disk":
+        # ‖L‖₂: the semi-major axis, whichever of a and b it is
+        return math.hypot(*o.c) + float(np.linalg.norm(np.asarray(o.lmat).reshape(2, 2), 2))
+    return float(np.max(np.hypot(*shapely.get_coordinates(o.poly).T)))
+
+
+def _deep_points(g: MultiPolygon, reach: float) -> list[tuple[float, float, float]]:
+    """Points (x, y, distance to ∂G) of G farther than :data:`_DEEP`·reach from ∂G.
+
+    One per polygon of G that can hold such a disk (its pole of inaccessibility,
+    :func:`shapely.ops.polylabel`, to 1 % of its size; the distance is measured
+    exactly afterwards, so a coarse pole only makes the check skip a polygon).
+    """
+    need = _DEEP * reach
+    out = []
+    for q in g.geoms:
+        minx, miny, maxx, maxy = q.bounds
+        if min(maxx - minx, maxy - miny) <= 2 * need or q.area <= math.pi * need * need:
+            continue
+        c = polylabel(q, tolerance=max(0.01 * max(maxx - minx, maxy - miny), 0.1 * need))
+        dist = float(q.exterior.distance(c))
+        dist = min([dist] + [float(h.distance(c)) for h in q.interiors])
+        if dist > need and q.contains(c):
+            out.append((c.x, c.y, dist))
+    return out
+
+
+def _check_p_inner(
+    g: MultiPolygon,
+    p_inner: BaseGeometry,
+    reach: float,
+    pts: list[tuple[float, float, float]],
+    phi: float,
+) -> None:
+    """Raise :class:`MMCInternalError` when P_inner misses a point where the nozzle fits.
+
+    ``pts`` are G's deep points (:func:`_deep_points` for ``reach``). If t is
+    farther than ρ (``reach``, the largest :func:`_reach` of the orifices) from ∂G,
+    every orifice placed at t lies inside G, so t ∈ P. P_inner only ever
+    removes points within 2·(1 + 10⁻⁷)·ρ of ∂G: the certified erosion's cuts
+    (tangent triangles reach 2r from a vertex of ∂G, fans, disks and stadiums
+    r/cos(π/(4·quad_segs))) and its global fallback (r/(κ − 1.05·10⁻³) ≤ 1.21·r
+    for quad_segs ≥ 2) in the affine trick's mapped plane, where distances
+    shrink by at most the semi-major axis; the Minkowski erosion removes only
+    positions where the footprint meets ∂G. A point farther than 2.5·ρ from ∂G
+    missing from P_inner is therefore a failure of the computation (issue #26:
+    a triangle's P came out empty), not an approximation: refuse to report
+    the nonsense result it would give (everything lost).
+    """
+    if not pts:
+        return
+    xy = np.asarray(pts)
+    inside = shapely.contains_xy(p_inner, xy[:, 0], xy[:, 1]) if not p_inner.is_empty else \
+        np.zeros(len(xy), bool)
+    if inside.all():
+        return
+    x, y, dist = xy[np.flatnonzero(~inside)[0]]
+    raise MMCInternalError(
+        f"exact engine: the nozzle certainly fits at ({x:.6g}, {y:.6g}) (at angle {phi:g}°, "
+        f"{dist:.4g} mm from the boundary, reach {reach:.4g} mm) but the computed motion "
+        f"region P misses it (P area {p_inner.area:.6g} mm², part {g.area:.6g} mm²); the "
+        "result would overstate the lost area. This is a bug: please report it with the "
+        "input (try engine='raster' meanwhile)."
+    )
+
+
 # --------------------------------------------------------------------------- angles
 
 
@@ -297,6 +372,13 @@ def mmc_exact(
         certified, also covering angles between samples on T-T-R (module
         docstring). ``extra["as_built_outer"]``: the outer S.
 
+    Raises
+    ------
+    MMCInternalError
+        When P misses a point of G farther than 2.5 nozzle reaches from ∂G
+        (:func:`_check_p_inner`): the nozzle certainly fits there, so the
+        computation failed; reporting "everything lost" would be nonsense.
+
     Notes
     -----
     Approximation: curved footprints are offset with ``quad_segs`` chords per
@@ -316,9 +398,15 @@ def mmc_exact(
     angles, gap, wrap = sampled_angles(nozzle, machine, settings)
     delta = angular_margin(nozzle, gap)
     results: list[_AngleResult] = []
+    deep: tuple[float, list[tuple[float, float, float]]] | None = None
     for phi in _progress(list(angles), settings.progress, "exact MMC over angles"):
         placed = [_place(f, nozzle.mount_angle + float(phi)) for f in nozzle.footprints]
-        results.append(_one_angle(g, placed, delta, q))
+        res_phi = _one_angle(g, placed, delta, q)
+        if deep is None:  # the reach does not change with the angle
+            reach = max(_reach(o) for o in placed)
+            deep = (reach, _deep_points(g, reach))
+        _check_p_inner(g, res_phi.p_inner, *deep, float(phi))
+        results.append(res_phi)
 
     s_in = _as_multi(shapely.union_all([r.s_inner for r in results]))
     # safety net: S ⊆ G holds by construction; should a GEOS failure break it,

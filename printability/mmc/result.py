@@ -16,7 +16,18 @@ from printability.geometry import Grid, Raster
 from printability.machine import Machine
 from printability.nozzle import Nozzle
 
-__all__ = ["Components", "MMCResult", "MotionRestriction", "PackedMasks"]
+__all__ = ["Components", "MMCInternalError", "MMCResult", "MotionRestriction", "PackedMasks"]
+
+
+class MMCInternalError(RuntimeError):
+    """An engine produced a result that contradicts its own guarantees: a bug, not a user error.
+
+    Deliberately not a :class:`printability.errors.PrintabilityError`: the CLI
+    keeps the traceback of anything else, which is what a bug report needs.
+    Raised instead of reporting nonsense (a lost area above the part's area,
+    bounds that do not contain the estimate, an empty motion region where the
+    nozzle certainly fits).
+    """
 
 
 @dataclass(frozen=True, eq=False)
@@ -238,6 +249,24 @@ class MMCResult:
     as_built_raster: Raster | None = None
     notes: tuple[str, ...] = ()
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        # 0 ≤ lo ≤ lost ≤ hi ≤ λ(G) holds for every engine by construction (each
+        # clamps its estimate into its bounds); a rounding slack of 10⁻⁹·λ(G)
+        lo, hi = self.lost_area_bounds
+        values = (self.target_area, self.lost_area, lo, hi)
+        slack = 1e-9 * max(abs(self.target_area), 1e-12) + 1e-15
+        if not all(np.isfinite(v) for v in values) or not (
+            -slack <= lo <= self.lost_area + slack
+            and self.lost_area <= hi + slack
+            and hi <= self.target_area + slack
+        ):
+            raise MMCInternalError(
+                f"{self.engine} engine: inconsistent lost area {self.lost_area!r} mm² with "
+                f"bounds ({lo!r}, {hi!r}) for a part of {self.target_area!r} mm² (need "
+                "0 ≤ lower ≤ lost ≤ upper ≤ part area). This is a bug: please report it "
+                "with the input."
+            )
 
     @property
     def lost_fraction(self) -> float:

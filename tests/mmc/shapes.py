@@ -35,15 +35,23 @@ __all__ = [
     "Shape",
     "catalogue",
     "comb",
+    "corner_arc_turn",
+    "corner_catalogue",
+    "corner_form_holds",
+    "corner_loss",
     "l_shape",
     "load_coastline",
     "load_slice",
+    "polygon",
+    "random_convex",
     "rectangle",
+    "regular_polygon",
     "ring",
     "slot",
     "star",
     "strip",
     "u_shape",
+    "v_notch",
 ]
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -163,6 +171,98 @@ def star(points: int = 5, r_out: float = 5.0, r_in: float = 2.0) -> MultiPolygon
     return _mp(Polygon(np.column_stack([r * np.cos(t), r * np.sin(t)])))
 
 
+def polygon(*vertices: tuple[float, float], holes=()) -> MultiPolygon:
+    """A polygon given by its vertices, kept in the order given (CW or CCW)."""
+    return _mp(Polygon(vertices, holes))
+
+
+def regular_polygon(n: int = 6, radius: float = 6.0, *, cw: bool = False) -> MultiPolygon:
+    """A regular n-gon centred on the origin, circumradius ``radius``; CCW unless ``cw``."""
+    t = 2 * math.pi * np.arange(n) / n
+    pts = np.column_stack([radius * np.cos(t), radius * np.sin(t)])
+    return _mp(Polygon(pts[::-1] if cw else pts))
+
+
+def v_notch(
+    width: float = 12.0, height: float = 10.0, mouth: float = 4.0, depth: float = 6.0
+) -> MultiPolygon:
+    """A ``width`` × ``height`` block with a V cut ``mouth`` wide, ``depth`` deep from the top.
+
+    The tip of the V is a reflex corner (loses nothing to a disk), the two
+    corners at its mouth are convex.
+    """
+    c = width / 2
+    return _mp(Polygon([(0, 0), (width, 0), (width, height), (c + mouth / 2, height),
+                        (c, height - depth), (c - mouth / 2, height), (0, height)]))
+
+
+def random_convex(seed: int, n: int = 7, radius: float = 8.0) -> MultiPolygon:
+    """A convex polygon with ``n`` vertices on a circle at seeded random angles.
+
+    Successive vertices are at least 25° apart, so no corner is sharper than
+    the inscribed angle 25°/2 and every edge is ≥ 2·radius·sin(12.5°) long.
+    """
+    rng = np.random.default_rng(seed)
+    gap = math.radians(25.0)
+    free = 2 * math.pi - n * gap
+    t = np.sort(rng.uniform(0.0, free, n)) + gap * np.arange(n) + rng.uniform(0, 2 * math.pi)
+    pts = np.column_stack([radius * np.cos(t), radius * np.sin(t)])
+    return _mp(Polygon(pts[::-1] if seed % 2 else pts))  # odd seeds clockwise
+
+
+def _oriented_rings(region: MultiPolygon):
+    """Every ring's vertices (k, 2), not closed, with the region's interior on the left."""
+    for q in region.geoms:
+        q = shapely.geometry.polygon.orient(q, 1.0)
+        for ring_ in (q.exterior, *q.interiors):
+            yield np.asarray(ring_.coords)[:-1]
+
+
+def _turns(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed turn τ at each vertex (> 0: convex, interior angle π − τ) and edge lengths."""
+    u = v - np.roll(v, 1, axis=0)  # edge into each vertex
+    w = np.roll(u, -1, axis=0)  # edge out of it
+    tau = np.arctan2(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0], np.einsum("ij,ij->i", u, w))
+    return tau, np.hypot(*w.T)
+
+
+def corner_loss(region: MultiPolygon, r: float) -> float:
+    """Closed-form area a disk of radius r loses when it opens a polygon (mm²).
+
+    Each convex corner of interior angle θ loses r²·(cot(θ/2) − (π − θ)/2) =
+    r²·(tan(τ/2) − τ/2) with τ = π − θ its turn (the area between the corner
+    and the disk touching both edges); reflex corners lose nothing. Holds
+    while :func:`corner_form_holds`.
+    """
+    total = 0.0
+    for v in _oriented_rings(region):
+        tau, _ = _turns(v)
+        tau = tau[tau > 0]
+        total += float(np.sum(np.tan(tau / 2) - tau / 2))
+    return r * r * total
+
+
+def corner_arc_turn(region: MultiPolygon) -> float:
+    """Σ τ over convex corners: the as-built boundary has arcs of total length r·Σ τ."""
+    return float(sum(np.sum(np.clip(_turns(v)[0], 0.0, None)) for v in _oriented_rings(region)))
+
+
+def corner_form_holds(region: MultiPolygon, r: float) -> bool:
+    """Whether :func:`corner_loss` is the exact opening loss of ``region`` by a disk of radius r.
+
+    Necessary and sufficient for the shapes built here: at each convex corner
+    the disk touches both edges at r·tan(τ/2) from the corner, and along every
+    edge the tangent points of its two ends must not cross. Checked also
+    against the erosion being non-empty in every polygon (no part too narrow).
+    """
+    for v in _oriented_rings(region):
+        tau, length = _turns(v)
+        t = np.where(tau > 0, r * np.tan(np.clip(tau, 0.0, None) / 2), 0.0)
+        if np.any(t + np.roll(t, -1) > length * (1 - 1e-9)):
+            return False
+    return all(not shapely.buffer(q, -r).is_empty for q in region.geoms)
+
+
 # ----------------------------------------------------------------------------- real
 
 
@@ -234,4 +334,45 @@ def catalogue(*, real: bool = True) -> dict[str, Shape]:
             region, lo, _ = load_slice(SHARED_DATA / "slices" / fname)
             shapes.append(Shape("slice:" + fname.split("_outline")[0], region, lo,
                                 "a real print layer (Kuipers et al. 2020)"))
+    return {s.name: s for s in shapes}
+
+
+@lru_cache(maxsize=1)
+def corner_catalogue() -> dict[str, Shape]:
+    """Polygons whose opening by a disk has the corner closed form :func:`corner_loss`.
+
+    Triangles (acute, right, obtuse) in both orientations, convex and
+    non-convex polygons (an hourglass, a V-notch), a block with a triangular
+    hole, a regular hexagon and seeded random convex polygons. Every feature
+    is ≥ 4 mm wide: :func:`corner_form_holds` for disks up to ``feature`` = 2 mm
+    across, the largest diameter the tests use. No
+    self-intersecting input: a bow-tie is split into two triangles by
+    :func:`printability.geometry.as_region` and is tested on its own.
+    """
+    tri = {"acute": ((0, 0), (12, 0), (5, 10)),
+           "right": ((0, 0), (12, 0), (0, 9)),
+           "obtuse": ((0, 0), (20, 0), (-4, 7)),
+           "issue26": ((0, 0), (20, 0), (10, 10))}
+    shapes = []
+    for kind, v in tri.items():
+        shapes.append(Shape(f"triangle_{kind}_ccw", polygon(*v), 2.0, "three convex corners"))
+        shapes.append(Shape(f"triangle_{kind}_cw", polygon(*v[::-1]), 2.0,
+                            "the same, clockwise"))
+    shapes += [
+        Shape("hexagon", regular_polygon(6, 6.0), 2.0, "six 120° corners (tiny loss)"),
+        Shape("hexagon_cw", regular_polygon(6, 6.0, cw=True), 2.0, "the same, clockwise"),
+        Shape("pentagon", polygon((0, 0), (14, 1), (16, 9), (7, 14), (-2, 8)), 2.0,
+              "an irregular convex pentagon"),
+        Shape("hourglass", polygon((0, 0), (12, 0), (8, 6), (12, 12), (0, 12), (4, 6)), 2.0,
+              "a bow-tie-like non-convex polygon: two reflex corners at a 4 mm waist"),
+        Shape("v_notch", v_notch(), 2.0, "a V cut: a reflex tip, two convex mouth corners"),
+        Shape("arrow", polygon((0, 4), (10, 4), (10, 0), (18, 7), (10, 14), (10, 10),
+                               (0, 10)), 2.0, "a non-convex arrow"),
+        Shape("triangle_hole", polygon((0, 0), (20, 0), (20, 18), (0, 18),
+                                       holes=[((6, 5), (14, 5), (10, 12))]), 2.0,
+              "a three-vertex hole: its corners are reflex corners of G"),
+    ]
+    shapes += [Shape(f"random_convex_{seed}", random_convex(seed, n), 2.0,
+                     "seeded random convex polygon")
+               for seed, n in ((1, 5), (2, 6), (3, 7), (4, 8))]
     return {s.name: s for s in shapes}
