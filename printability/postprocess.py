@@ -34,9 +34,14 @@ comments or the width inverted from E). The outer perimeter's centre line is
 therefore exactly w/2 from ∂G; ``tolerance`` (default 1 µm, minus the
 rounding of the coordinates written) absorbs the rounding of coordinates and
 of the polygonal arcs. Footprints are tested against G grown by that
-tolerance, built as the union of one convex polygon per bead
-(:mod:`printability.motion.beadunion`: between G ⊕ 0.35τ and G ⊕ τ, without a
-GEOS overlay; built by :mod:`printability.targets`). Layers are planned in
+tolerance. By default (``interior``) G is the object, not only its beads: the
+gaps the slicer leaves inside it (sparse infill) are filled back, the holes its
+outer walls trace kept (:func:`printability.sources.gcode.fill_interior`), so a
+footprint may reach into a gap (inside the part) instead of turning standing
+still; that target is built by GEOS per layer. With ``interior=False`` it is the
+union of one convex polygon per bead (:mod:`printability.motion.beadunion`:
+between G ⊕ 0.35τ and G ⊕ τ, without a GEOS overlay; built by
+:mod:`printability.targets`). Layers are planned in
 batches, laid side by side in one plane (:mod:`printability.motion.tiles`) so
 that one union and one planner call serve a batch. Non-part moves are left as
 they are.
@@ -152,6 +157,12 @@ class PostprocessOptions:
         release the GIL) while the planner runs, and that the planner's footprint
         tests are shared out over; None: one per CPU core, at most 4. The output
         is the same bytes on any number.
+    interior
+        Plan against the object: the slicer's beads with the gaps it leaves inside the object
+        (sparse infill) filled back (:func:`printability.sources.gcode.fill_interior`), so a
+        footprint may reach into a gap it would not leave the part through. False: against
+        the beads alone (the nozzle never covers a spot the slicer leaves empty; more turns
+        standing still, and a slower print).
     allow_empty
         Write the file even when the nozzle prints none of the part (by default
         that is a :class:`NozzleTooLargeError` and the file is left alone).
@@ -176,6 +187,7 @@ class PostprocessOptions:
     workers: int | None = None
     orientation: OrientationOptions = field(default_factory=OrientationOptions)
     allow_empty: bool = False
+    interior: bool = True
 
     def __post_init__(self) -> None:
         if self.output_name is not None:
@@ -469,7 +481,8 @@ def postprocess_bytes(
         order = np.argsort(seg_layer, kind="stable")
         bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1))
         batches = layer_targets(g, float(fd), quad_segs, tol_grow, workers=n_workers,
-                                 planned=(seg, order, bounds), reach=nozzle.radius)
+                                 planned=(seg, order, bounds), reach=nozzle.radius,
+                                 interior=options.interior)
     else:
         seg_move = np.zeros(0, np.int64)
         widths = np.zeros(0)
@@ -541,7 +554,8 @@ def postprocess_bytes(
     notes = [
         "lost area = dropped length x planned width (what no orientation can print)",
         f"tolerance = {options.tolerance:g} mm; E policy = {e_policy}; layer targets from the "
-        "slicer's part extrusions",
+        "slicer's part extrusions" + (", the gaps inside the object filled" if options.interior
+                                      else ""),
     ]
     if narrow_beads:
         notes.append("round nozzle no larger than the slicer's: it lays the slicer's own beads, "

@@ -39,7 +39,7 @@ _TILE_GAP = 1.0
 
 
 def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float, *,
-                  workers: int = 1, planned: tuple, reach: float
+                  workers: int = 1, planned: tuple, reach: float, interior: bool = False
                   ) -> Iterator[tuple[list[int], np.ndarray, object, list[float], bool]]:
     """The layers that have a target, in batches, in order: per batch (its layers, their
     translations (n, 2) mm, the prepared target the planner tests footprints against,
@@ -59,7 +59,9 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     nozzle's radius. A layer that repeats an earlier one of its batch to the bit (its
     beads and planned chords) is given that layer's translation and adds nothing to the
     union (:func:`_layer_kinds`). A tolerance too small for the bead union falls back to
-    GEOS (the union, then a buffer), one layer per batch. Targets are built on
+    GEOS (the union, then a buffer), one layer per batch. ``interior``: G with the gaps the
+    slicer leaves inside the object filled back (:func:`~printability.sources.gcode.
+    fill_interior`), built by GEOS one layer per batch. Targets are built on
     ``workers`` threads while the caller plans; the first, which the caller waits for,
     is itself shared out over them.
     """
@@ -70,7 +72,7 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     per_layer = [np.flatnonzero(good[bounds[k]:bounds[k + 1]]) + bounds[k]
                  for k in range(len(g.layers))]
     r_max = float(width[good].max()) / 2 if good.any() else 0.0
-    if _union_edges(r_max, tolerance) <= 256:
+    if not interior and _union_edges(r_max, tolerance) <= 256:
         with_target = [k for k in range(len(g.layers)) if per_layer[k].size]
         if not with_target:
             return iter(())
@@ -106,7 +108,8 @@ def layer_targets(g, filament_diameter: float, quad_segs: int, tolerance: float,
     # GEOS: G, then G grown by the tolerance
     regions = [None] * len(g.layers)
     for li, geom, _facts in layer_regions(g, settings=settings,
-                                          filament_diameter=filament_diameter):
+                                          filament_diameter=filament_diameter,
+                                          interior=interior):
         regions[li] = geom if geom is not None and not geom.is_empty else None
     todo_l = [k for k in range(len(g.layers)) if regions[k] is not None]
 

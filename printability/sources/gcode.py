@@ -39,7 +39,11 @@ What it cannot know
   between neighbouring beads are not modelled (overlaps simply union).
 * Regions the slicer left empty on purpose (sparse infill gaps) are holes of
   G exactly as printed: G is what the file deposits, not the CAD section.
-  Interiors filled by sparse infill are therefore porous.
+  Interiors filled by sparse infill are therefore porous. With
+  ``interior=True`` (:func:`layer_regions`, what the post-processor plans
+  against) those gaps are filled back: a hole of G is the part's own (outside
+  the object) when its boundary runs along the outer walls, and a gap inside
+  the object otherwise (:func:`fill_interior`).
 * Which moves are not part of the object, when the file does not say: by
   default the features in :data:`gcode.NON_PART_CATEGORIES` (supports and
   their interfaces, skirt, brim, wipe/prime tower, custom start/end
@@ -81,8 +85,8 @@ from printability.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import check_positive, require_file
 
-__all__ = ["BEAD_MODELS", "bead_widths", "layer_beads", "layer_regions", "load_gcode_layers",
-           "resolve_bead_model", "segment_widths"]
+__all__ = ["BEAD_MODELS", "WALL_CATEGORIES", "bead_widths", "fill_interior", "layer_beads",
+           "layer_regions", "load_gcode_layers", "resolve_bead_model", "segment_widths"]
 
 BEAD_MODELS = ("auto", "stadium", "rectangle")
 
@@ -222,19 +226,11 @@ def segment_widths(
     return width, derived, clipped
 
 
-def layer_beads(
-    g: GCodeFile,
-    *,
-    settings: Settings = DEFAULT_SETTINGS,
-    filament_diameter: float = 1.75,
-    bead_model: str = "auto",
-    use_width_comments: bool = True,
-    exclude: Iterable[str] = NON_PART_CATEGORIES,
-    max_width_factor: float = 3.0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, str]:
+def layer_beads(g: GCodeFile, **kwargs
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, str]:
     """The beads every layer target is the union of: one chord per row, in file order.
 
-    See :func:`load_gcode_layers` for the parameters.
+    Keyword arguments as :func:`load_gcode_layers` takes them.
 
     Returns
     -------
@@ -244,6 +240,20 @@ def layer_beads(
         are rows ``bounds[k]:bounds[k + 1]`` (widths may be NaN or 0 there:
         such chords lay no bead); the bead model used.
     """
+    return _layer_beads(g, **kwargs)[:6]
+
+
+def _layer_beads(
+    g: GCodeFile,
+    *,
+    settings: Settings = DEFAULT_SETTINGS,
+    filament_diameter: float = 1.75,
+    bead_model: str = "auto",
+    use_width_comments: bool = True,
+    exclude: Iterable[str] = NON_PART_CATEGORIES,
+    max_width_factor: float = 3.0,
+) -> tuple:
+    """:func:`layer_beads`, and the row of ``g.moves`` each chord comes from."""
     excl = set(exclude)
     unknown = excl - set(CATEGORIES)
     if unknown:
@@ -268,7 +278,7 @@ def layer_beads(
                                           model=model, use_width_comments=use_width_comments,
                                           max_width_factor=max_width_factor)
     bounds = np.searchsorted(layer, np.arange(len(g.layers) + 1), side="left")
-    return seg, width, derived, over, bounds, model
+    return seg, width, derived, over, bounds, model, mv
 
 
 def layer_regions(
@@ -280,16 +290,21 @@ def layer_regions(
     use_width_comments: bool = True,
     exclude: Iterable[str] = NON_PART_CATEGORIES,
     max_width_factor: float = 3.0,
+    interior: bool = False,
 ) -> list[tuple[int, object, dict]]:
     """Per layer: (layer index, shapely geometry of its beads or None, facts).
 
     See :func:`load_gcode_layers` for the parameters. Layers without any
-    bead get ``None``.
+    bead get ``None``. ``interior``: fill the gaps the slicer left inside the object
+    (sparse infill) back into G, keeping the holes bounded by outer walls
+    (:func:`fill_interior`); ``facts["interior_filled"]`` counts the gaps filled.
     """
-    seg, width, derived, over, bounds, model = layer_beads(
+    seg, width, derived, over, bounds, model, mv = _layer_beads(
         g, settings=settings, filament_diameter=filament_diameter, bead_model=bead_model,
         use_width_comments=use_width_comments, exclude=exclude,
         max_width_factor=max_width_factor)
+    wall = np.isin(g.feature_category_of_moves()[mv], list(WALL_CATEGORIES)) if interior \
+        else None
 
     def one(li: int) -> tuple[int, object, dict]:
         a, b = bounds[li], bounds[li + 1]
@@ -304,9 +319,105 @@ def layer_regions(
         facts["median_width"] = float(np.median(w[good])) if good.any() else float("nan")
         if not good.any():
             return li, None, facts
-        return li, _beads_union(seg[a:b][good], w[good], settings.quad_segs), facts
+        region = _beads_union(seg[a:b][good], w[good], settings.quad_segs)
+        if wall is not None:
+            on = good & wall[a:b]
+            walls = inside = None
+            if on.any():
+                walls = _beads_union(seg[a:b][on], w[on], settings.quad_segs)
+                inside = _wall_inside(seg[a:b][on], w[on])
+            region, facts["interior_filled"] = fill_interior(region, walls, inside)
+        return li, region, facts
 
     return _map_layers(one, len(g.layers), settings)
+
+
+WALL_CATEGORIES = frozenset({"outer_wall", "overhang_wall"})
+"""Feature categories that trace the object's own boundary (:func:`fill_interior`)."""
+
+_ALONG = 0.01
+"""How near (mm) a hole's boundary must run to an outer wall to count as running along it."""
+_SURE_OWN = 0.9
+"""A hole whose boundary runs along the outer walls for this share of its length or more is
+the object's own (or a hollow the slicer keeps on purpose: a vase, 0 % infill)."""
+_SURE_GAP = 0.1
+"""A hole whose boundary runs along the outer walls for less than this share is a gap
+between infill lines and inner walls, inside the object."""
+
+
+def _wall_inside(seg: np.ndarray, width: np.ndarray):
+    """The inside of the closed outer-wall loops, even-odd (a hole's loop inside a contour's
+    loop cuts it out), or None when no wall chain closes. A chain closes when it ends within
+    two bead widths of where it started (slicers leave a small gap at the seam)."""
+    if len(seg) == 0:
+        return None
+    chain = _chains(seg, np.zeros(len(seg)))
+    first = np.searchsorted(chain, np.arange(int(chain[-1]) + 2), side="left")
+    inside = None
+    for c in range(len(first) - 1):
+        a, b = first[c], first[c + 1]
+        xy = np.concatenate([[[seg["x0"][a], seg["y0"][a]]],
+                             np.column_stack([seg["x1"][a:b], seg["y1"][a:b]])])
+        if len(xy) < 4 or math.hypot(*(xy[-1] - xy[0])) > 2.0 * float(np.max(width[a:b])):
+            continue
+        loop = shapely.make_valid(shapely.Polygon(xy))
+        inside = loop if inside is None else shapely.symmetric_difference(inside, loop)
+    return inside
+
+
+def fill_interior(region, walls, inside=None) -> tuple[object, int]:
+    """``region`` with the gaps inside the object filled: (the region, gaps filled).
+
+    A slicer traces every boundary of the object, outer contours and holes alike, with an
+    outer wall (``;TYPE:External perimeter``, ``Outer wall``, ``WALL-OUTER``...). A hole of
+    the bead union (``region``) is classified by the share of its boundary that runs along
+    those walls (``walls``, their bead union; within :data:`_ALONG` mm):
+
+    * at least :data:`_SURE_OWN`: the object's own hole, or a hollow the slicer keeps on
+      purpose (a vase, 0 % infill): kept;
+    * under :data:`_SURE_GAP`: a gap between infill lines and inner walls: filled;
+    * in between (a sliver between an outer and an inner wall, a sparse gap beside a single
+      wall): filled only when it lies inside the walls' closed loops (``inside``, from
+      :func:`_wall_inside`, even-odd), kept otherwise or when that is unknown.
+
+    Material the nozzle lays in a filled gap is inside the part, which is all the MMC
+    promise asks (the slicer's E, hence the volume, is unchanged). Without outer walls (a
+    file with no feature comments) nothing is known and nothing is filled.
+
+    Complexity: one buffer of the walls and one intersection per hole.
+    """
+    if walls is None or walls.is_empty or region is None or region.is_empty:
+        return region, 0
+    polys = shapely.get_parts(region)
+    rings = [(i, r) for i, p in enumerate(polys) if p.geom_type == "Polygon"
+             for r in p.interiors]
+    if not rings:
+        return region, 0
+    near = shapely.buffer(walls, _ALONG, quad_segs=2)
+    shapely.prepare(near)
+    lines = np.array([shapely.LineString(r.coords) for _, r in rings], dtype=object)
+    share = shapely.length(shapely.intersection(lines, near)) / shapely.length(lines)
+    own = share >= _SURE_GAP
+    unsure = np.flatnonzero(own & (share < _SURE_OWN))
+    if unsure.size and inside is not None and not inside.is_empty:
+        at = shapely.point_on_surface([shapely.Polygon(rings[j][1]) for j in unsure])
+        own[unsure[shapely.contains(inside, at)]] = False
+    if own.all():
+        return region, 0
+    # a filled gap may hold an island of the object with holes of its own (a hole's walls
+    # standing in sparse infill): those stay open
+    gaps = [shapely.Polygon(rings[j][1]) for j in np.flatnonzero(~own)]
+    kept = [shapely.Polygon(rings[j][1]) for j in np.flatnonzero(own)]
+    kept_at = shapely.point_on_surface(kept) if kept else None
+    fills = []
+    for gap in gaps:
+        if kept:
+            inner = [k for k, c in zip(kept, shapely.contains(gap, kept_at), strict=True)
+                     if c and k.area < gap.area]
+            if inner:
+                gap = shapely.difference(gap, shapely.union_all(inner))
+        fills.append(gap)
+    return shapely.union_all([region, *fills]), len(gaps)
 
 
 def _map_layers(fn, n: int, settings: Settings) -> list:

@@ -73,15 +73,19 @@ def lines_not_kept(old: bytes, new: bytes, may_change: set[int]) -> tuple[list[i
     return missing, changed
 
 
-def geos_targets(g, filament_diameter: float = 1.75, quad_segs: int = 32) -> list:
+def geos_targets(g, filament_diameter: float = 1.75, quad_segs: int = 32, *,
+                 interior: bool = True) -> list:
     """Per layer, G rebuilt by GEOS from the file's part beads (None: no bead): the
-    independent reference the deposition checks measure against."""
+    independent reference the deposition checks measure against. ``interior`` as
+    :class:`~printability.postprocess.PostprocessOptions` has it (default: the gaps inside
+    the object filled, what the post-processor plans against by default)."""
     from printability.settings import Settings
     from printability.sources.gcode import layer_regions
 
     out: list = [None] * len(g.layers)
     for li, geom, _facts in layer_regions(g, settings=Settings(quad_segs=quad_segs),
-                                          filament_diameter=filament_diameter):
+                                          filament_diameter=filament_diameter,
+                                          interior=interior):
         out[li] = geom if geom is not None and not geom.is_empty else None
     return out
 

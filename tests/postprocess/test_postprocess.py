@@ -312,9 +312,22 @@ def test_threads_change_nothing(shared_data, monkeypatch):
 
 @pytest.mark.parametrize("key", ["prusa", "benchy"])
 def test_reported_target_area_is_that_of_g(processed, key):
-    """The bead union's area less sτ × its perimeter is G's area, within that much."""
+    """The layer's reported target area is G's (the object: the gaps inside it filled)."""
     data, _, res = processed[key]
     targets = geos_targets(parse_gcode(data))
+    assert res.layers
+    for r in res.layers:
+        assert r.target_area == pytest.approx(targets[r.index].area, rel=1e-9), r.index
+
+
+def test_bead_union_area_is_that_of_g_within_its_margin(prusa_short):
+    """Against the beads alone (``interior=False``, the bead union of
+    :mod:`printability.motion.beadunion`): the union's area less sτ × its perimeter is G's
+    area, within that much."""
+    data = prusa_short.read_bytes()
+    _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
+                                                                  interior=False))
+    targets = geos_targets(parse_gcode(data), interior=False)
     assert res.layers
     for r in res.layers:
         g = targets[r.index]
@@ -327,10 +340,12 @@ def test_a_tolerance_too_small_for_the_bead_union_uses_geos(prusa_short):
     then buffer) plans instead, and plans the same moves where τ does not matter."""
     data = prusa_short.read_bytes()
     _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
-                                                                  tolerance=1e-4))
-    targets = geos_targets(parse_gcode(data))
+                                                                  tolerance=1e-4,
+                                                                  interior=False))
+    targets = geos_targets(parse_gcode(data), interior=False)
     for r in res.layers:
         assert r.target_area == pytest.approx(targets[r.index].area, rel=1e-12)
     _, res_ref = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE,
-                                                                      machine="ttr"))
+                                                                      machine="ttr",
+                                                                      interior=False))
     assert abs(res.split_moves - res_ref.split_moves) <= 0.05 * res_ref.split_moves

@@ -125,9 +125,10 @@ def test_the_cubes_repeated_layers_share_their_union(prusa_slicer, shared_data, 
     real = pp_targets.bead_union
     monkeypatch.setattr(pp_targets, "bead_union",
                         lambda p0, p1, rad, **kw: built.append(len(p0)) or real(p0, p1, rad, **kw))
-    new, _ = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
+    new, _ = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
+                                                                interior=False))
     assert len(built) == 1 and built[0] == distinct_beads  # the cube is one batch
-    reports = check_deposition(extrusion_chords(parse_gcode(new)), geos_targets(g),
+    reports = check_deposition(extrusion_chords(parse_gcode(new)), geos_targets(g, interior=False),
                                parse_nozzle(ELLIPSE), layers=twins[-2:])
     assert len(reports) == 2 and all(rep.max_outside <= 1e-3 + 2e-4 for rep in reports), reports
 

@@ -74,7 +74,7 @@ def test_planning_in_batches_decides_as_layer_by_layer(prusa_short, monkeypatch)
     layers, targets and moves; the decisions may differ only where a footprint grazes
     the target within the translation's rounding (a few pieces)."""
     data = prusa_short.read_bytes()
-    opts = PostprocessOptions(nozzle=ELLIPSE, machine="ttr")
+    opts = PostprocessOptions(nozzle=ELLIPSE, machine="ttr", interior=False)
     _, batched = postprocess_bytes(data, options=opts)
     monkeypatch.setattr(pp_targets, "_BATCH_AREA", 1.0)  # every layer a batch of its own
     _, alone = postprocess_bytes(data, options=opts)
@@ -127,9 +127,10 @@ def test_batches_keep_offset_orifices_inside_their_layer(prusa_short, spec, monk
 
     monkeypatch.setattr(pp_targets, "_TILE_GAP", 1e-3)
     data = prusa_short.read_bytes()
-    new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=spec, machine="ttr"))
+    new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=spec, machine="ttr",
+                                                                  interior=False))
     assert len(res.layers) > 1
-    targets = geos_targets(parse_gcode(data))
+    targets = geos_targets(parse_gcode(data), interior=False)
     layers = [i for i, t in enumerate(targets) if t is not None][1:3]
     reports = check_deposition(extrusion_chords(parse_gcode(new)), targets, parse_nozzle(spec),
                                layers=layers)
@@ -189,7 +190,8 @@ def test_repeated_layers_share_their_twin_target(union_sizes):
     from printability.nozzle import parse_nozzle
 
     data = _square_layers(5, first_differs=True)
-    new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
+    new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
+                                                                  interior=False))
     per_layer = [r.moves for r in res.layers]
     assert len(per_layer) == 5 and len(union_sizes) == 1
     assert union_sizes[0] == per_layer[0] + per_layer[1]  # layers 3 to 5 add no bead
@@ -199,7 +201,7 @@ def test_repeated_layers_share_their_twin_target(union_sizes):
     # the estimate is within 1e-5 of GEOS's G on sliced parts)
     assert res.layers[0].target_area == pytest.approx(res.layers[1].target_area, rel=1e-5)
     assert res.rotary_words > 0
-    targets = geos_targets(parse_gcode(data))
+    targets = geos_targets(parse_gcode(data), interior=False)
     reports = check_deposition(extrusion_chords(parse_gcode(new)), targets, parse_nozzle(ELLIPSE),
                                layers=[1, 2, 3, 4])
     assert len(reports) == 4
@@ -212,7 +214,8 @@ def test_repeated_layers_share_a_tile_in_every_batch(union_sizes, monkeypatch):
     an earlier batch: batches of two layers, one layer's beads each after the first."""
     data = _square_layers(5, first_differs=True)
     monkeypatch.setattr(pp_targets, "_BATCH_AREA", 400.0)  # two 12 mm tiles a batch
-    _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr"))
+    _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
+                                                                interior=False))
     n = [r.moves for r in res.layers]
     # (the batches' unions are built on threads, side by side: in either order)
     assert sorted(union_sizes) == sorted([n[0] + n[1], n[2], n[4]])

@@ -5,13 +5,13 @@
 ; printability: machine = ttr-klipper.toml
 ; printability: rotary axis = C, degrees, period 180
 ; printability: flavor = klipper, feed policy = xy, E = relative, bead model = rounded, filament = 1.75 mm
-; printability: layers = 1, target area = 41.659 mm2, lost area = 1.283 mm2 (3.08 %)
+; printability: layers = 1, target area = 112.721 mm2, lost area = 0.720 mm2 (0.64 %)
 ; printability: layer z, target mm2, lost mm2, dropped moves, dropped mm, split moves
-; printability: layer 0.200 41.6590 1.2825 1 2.850 9
+; printability: layer 0.200 112.7214 0.7200 0 1.600 7
 ; printability: lost area = dropped length x planned width (what no orientation can print)
-; printability: tolerance = 0.001 mm; E policy = width; layer targets from the slicer's part extrusions
+; printability: tolerance = 0.001 mm; E policy = width; layer targets from the slicer's part extrusions, the gaps inside the object filled
 ; printability: Klipper: printer.cfg needs [manual_stepper c] (rotation_distance in degrees); this file registers it as G-code axis C
-; printability: estimated print time on the firmware's planner (Klipper's look-ahead, the machine's [planner] limits): slicer's file 6s, this file 11s (1.91x); 10 rotation-only moves take 2s, each a full stop
+; printability: estimated print time on the firmware's planner (Klipper's look-ahead, the machine's [planner] limits): slicer's file 6s, this file 10s (1.84x); 12 rotation-only moves take 3s, each a full stop
 MANUAL_STEPPER STEPPER=c GCODE_AXIS= ; unregister C if a macro registered it
 MANUAL_STEPPER STEPPER=c ENABLE=1
 MANUAL_STEPPER STEPPER=c SET_POSITION=0 ; the nozzle's current orientation is angle 0
@@ -54,13 +54,12 @@ G1 C296.889 F21600
 G1 X100 Y100.2 E0.3102 F1200
 G1 X100 Y100
 G1 E-0.8 F2100
-G1 X100.45 Y100.45 F9000 C320
+G1 X100.45 Y100.45 F9000 C330
 G1 E0.8 F2100
 ;TYPE:Perimeter
 ;WIDTH:0.45
 G1 F1500
-G1 X100.65 Y100.45 E0.00843 ; printability: was G1 X109.55 Y100.45 E0.3
-G1 X100.85 Y100.45 E0.00567 C340
+G1 X100.85 Y100.45 E0.01406 ; printability: was G1 X109.55 Y100.45 E0.3
 G1 C386.889 F21600
 G1 X109.55 Y100.45 E0.28681 F1500
 G1 X109.7678 Y100.6787 E0.01116 C390 ; printability: was G3 X109.55 Y109.55 I-4.55 J4.55 E0.45
@@ -94,36 +93,28 @@ G1 X110.5192 Y108.3081 E0.01222
 G1 X110.3502 Y108.5749 E0.01209 C502.344
 G1 X110.1684 Y108.8331 E0.01209 C505.156
 G1 X109.9741 Y109.0821 E0.01265 C510
-G1 X109.7678 Y109.3213 E0.01209 C510.781
-G1 X109.55 Y109.55 E0.01406 C520.483
-G1 X100.7167 Y109.55 E0.29121 C513.111 ; printability: was G1 X100.45 Y109.55 E0.3
+G1 X109.7678 Y109.3213 E0.01188
+G1 X109.55 Y109.55 E0.01116
+G1 X100.85 Y109.55 E0.28681 C513.111 ; printability: was G1 X100.45 Y109.55 E0.3
 G1 C570 F21600
-G1 X100.5833 Y109.55 E0.00469 F1500
-G1 X100.45 Y109.55 E0.00562 C580
-G1 X100.45 Y109.35 E0.00843 C590 ; printability: was G1 X100.45 Y100.45 E0.3
-G1 X100.45 Y109.15 E0.00567 C610
+G1 X100.45 Y109.55 E0.01406 F1500
+G1 C600 F21600 ; printability: was G1 X100.45 Y100.45 E0.3
+G1 X100.45 Y109.15 E0.01406 F1500
 G1 C656.889 F21600
-G1 X100.45 Y100.7167 E0.27802 F1500
-G1 X100.45 Y100.5833 E0.00469 C660
-G1 X100.45 Y100.45 E0.00562 C670
+G1 X100.45 Y100.85 E0.27363 F1500
+G1 C660 F21600
+G1 X100.45 Y100.45 E0.01406 F1500
 G1 E-0.8 F2100
 ;TYPE:Solid infill
 ;WIDTH:0.45
-G1 X101 Y101 F9000
+G1 X101 Y101 F9000 C746.889
 G1 E0.8 F2100
 G1 F1800
-G1 X101.2 Y101 C710 ; printability: was G1 X109 Y101 E0.26
-G1 X101.4 Y101 E0.00453
-G1 X108.7333 Y101 E0.23833 C693.111
-G1 C740 F21600
-G1 X108.8 Y101 E0.00186 F1800
-G1 X109 Y101
-G1 X109 Y101.45 ; printability: was G1 X109 Y101.45 E0.015
-G1 X108.8 Y101.45 C693.111 ; printability: was G1 X101 Y101.45 E0.26
-G1 X101.2667 Y101.45 E0.24483
-G1 C710 F21600
-G1 X101.2 Y101.45 E0.00151 F1800
-G1 X101 Y101.45
+G1 X109 Y101 E0.26
+G1 C783.111 F21600
+G1 X109 Y101.45 E0.015 F1800
+G1 C746.889 F21600
+G1 X101 Y101.45 E0.26 F1800
 G1 E-0.8 F2100
 G1 Z0.6 F720
 M104 S0
