@@ -175,7 +175,7 @@ def generate_gcode(
     if options.perimeters < 0:
         raise InputError(f"perimeters must be >= 0; got {options.perimeters}")
     period = noz.symmetry_period
-    turns = mach.kind == "ttr" and period != 0.0
+    turns = mach.turns(noz)
     flavor = mach.firmware()
     policy = FEED_POLICIES.check(options.feed_policy or mach.feed_policy_for(flavor))
     if policy == "inverse-time" and not flavor.inverse_time:
@@ -184,12 +184,12 @@ def generate_gcode(
                          "euclidean)")
     bead_model = str(_profile(mach, "extruder").get("bead_model", "rounded"))
     bead_model = BEAD_MODELS.check(bead_model)
-    full = mach.kind == "ttr" and mach.full_turn and not options.unwind
+    full = mach.full_turn and not options.unwind
     wopts = WriterOptions(
         letter=(options.letter or mach.rotary_letter).upper(),
         period=period if turns else 0.0,
-        angle_min=-math.inf if full else (mach.angle_min if mach.kind == "ttr" else 0.0),
-        angle_max=math.inf if full else (mach.angle_max if mach.kind == "ttr" else 0.0),
+        angle_min=-math.inf if full else (mach.angle_min if mach.has_rotary else 0.0),
+        angle_max=math.inf if full else (mach.angle_max if mach.has_rotary else 0.0),
         unwind=options.unwind, feed_policy=policy, relative_e=options.relative_e,
         filament_diameter=mach.filament_diameter, bead_model=bead_model,
         rotary_feed=60.0 * _num(mach, "speeds", "rotary", mach.rotary_axis.max_speed),

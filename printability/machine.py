@@ -164,6 +164,18 @@ class Machine:
     def full_turn(self) -> bool:
         return self.kind == "ttr" and self.angle_max - self.angle_min >= 360.0 - 1e-9
 
+    def turns(self, nozzle) -> bool:
+        """Whether this machine turns ``nozzle``: a rotary axis, and a nozzle that is not
+        round (a round one looks the same at every angle: period 0). The one place that
+        says it; every stage asks here."""
+        return self.has_rotary and nozzle.symmetry_period != 0.0
+
+    def covers_period(self, period: float) -> bool:
+        """Whether the rotary range reaches every orientation of a nozzle whose shape
+        repeats every ``period`` degrees (360: none): True on an endless axis, or a range at
+        least one period wide. False on a machine without a rotary axis."""
+        return self.has_rotary and self.angle_max - self.angle_min >= period - 1e-9
+
     def angles(self, *, step: float | None = None, period: float = 360.0) -> np.ndarray:
         """Rotary angles to sample, degrees.
 

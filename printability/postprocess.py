@@ -453,14 +453,14 @@ def postprocess_bytes(
         slicer_d = float(np.median(planned)) if planned.size else 0.0
     narrow_beads = bool(nozzle.is_round and 2 * nozzle.footprints[0].a <= slicer_d + 1e-9)
     period = nozzle.symmetry_period
-    turns = machine.kind == "ttr" and period != 0.0
+    turns = machine.turns(nozzle)
     wopts = WriterOptions(letter=letter, period=period if turns else 0.0,
-                          angle_min=machine.angle_min if machine.kind == "ttr" else 0.0,
-                          angle_max=machine.angle_max if machine.kind == "ttr" else 0.0,
+                          angle_min=machine.angle_min if machine.has_rotary else 0.0,
+                          angle_max=machine.angle_max if machine.has_rotary else 0.0,
                           unwind=options.unwind, feed_policy=policy,
                           rotary_feed=machine.rotary_axis.rotation_feed,
                           filament_diameter=float(fd), angle_decimals=options.angle_decimals)
-    if machine.kind == "ttr" and machine.full_turn and not options.unwind:
+    if machine.full_turn and not options.unwind:
         # a full-turn axis without cables turns freely: no limits on the coordinate
         wopts = WriterOptions(**{**wopts.__dict__, "angle_min": -math.inf,
                                  "angle_max": math.inf})

@@ -170,7 +170,7 @@ def _angular_cells(machine: Machine, nozzle: Nozzle, angles: np.ndarray) -> tupl
     """(Δ in degrees, wrap) for the sampled angles."""
     period = nozzle.symmetry_period
     wrap = False
-    if machine.kind == "ttr" and period != 0.0 and len(angles) > 1:
+    if machine.turns(nozzle) and len(angles) > 1:
         span = machine.angle_max - machine.angle_min
         wrap = machine.full_turn or (0 < period < 360.0 and span >= period - 1e-9)
     if len(angles) < 2:

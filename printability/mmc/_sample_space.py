@@ -123,7 +123,7 @@ def sample_space(
     period = nozzle.symmetry_period
     angles = np.asarray(machine.angles(step=settings.angle_step, period=period), dtype=float)
     gap, wrap_a = angle_gap(machine, angles, period)
-    turning = machine.kind == "ttr" and period != 0.0 and len(angles) > 1
+    turning = machine.turns(nozzle) and len(angles) > 1
     orifices = orifices_of(nozzle, quad_segs=settings.quad_segs)
     pts = np.concatenate([_ring(o.inner) for o in orifices])
     gminx, gminy, gmaxx, gmaxy = region.bounds
@@ -143,7 +143,7 @@ def sample_space(
     names, kinds = ("X", "Y"), ("prismatic", "prismatic")
     values: tuple[np.ndarray, ...] = (xs, ys)
     wraps, steps, levers, reaches = (False, False), (h, h), (1.0, 1.0), (0.0, 0.0)
-    if machine.kind == "ttr":
+    if machine.has_rotary:
         names += (machine.rotary_letter,)
         kinds += ("spin",)
         values += (angles,)

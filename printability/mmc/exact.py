@@ -321,7 +321,7 @@ def sampled_angles(
     """
     period = nozzle.symmetry_period
     angles = np.asarray(machine.angles(step=settings.angle_step, period=period), dtype=float)
-    if machine.kind != "ttr" or period == 0.0 or len(angles) == 1:
+    if not machine.turns(nozzle) or len(angles) == 1:
         return angles[:1], 0.0, False
     span = machine.angle_max - machine.angle_min
     periodic = machine.full_turn or (0 < period < 360.0 and span >= period - 1e-9)

@@ -506,7 +506,7 @@ def mmc_reference(
     period = nozzle.symmetry_period
     angles = np.asarray(machine.angles(step=settings.angle_step, period=period), dtype=float)
     gap, wrap = angle_gap(machine, angles, period)
-    turning = machine.kind == "ttr" and period != 0.0 and len(angles) > 1
+    turning = machine.turns(nozzle) and len(angles) > 1
     orifices = orifices_of(nozzle, quad_segs=settings.quad_segs)
     r_in = min(o.inradius for o in orifices)
     r_max = nozzle.radius

@@ -260,7 +260,7 @@ def width_table(nozzle: Nozzle, *, step: float = 0.5) -> tuple[np.ndarray, np.nd
 def candidate_orientations(machine: Machine, nozzle: Nozzle, *, step: float) -> np.ndarray:
     """Orientations the machine can take, sampled every ``step`` degrees (one period)."""
     period = nozzle.symmetry_period
-    if machine.kind != "ttr" or period == 0.0:
+    if not machine.turns(nozzle):
         return np.array([0.0])
     lo, hi = machine.angle_min, machine.angle_max
     span = min(hi - lo, period if period else 360.0)
@@ -271,7 +271,7 @@ def candidate_orientations(machine: Machine, nozzle: Nozzle, *, step: float) -> 
 
 def _reachable(phi: np.ndarray, machine: Machine, period: float) -> np.ndarray:
     """Whether some equivalent of each orientation lies within the axis limits."""
-    if machine.kind != "ttr":
+    if not machine.has_rotary:
         return np.isclose(np.mod(phi + 1e-9, period or 360.0), 1e-9, atol=1e-6)
     lo, hi = machine.angle_min, machine.angle_max
     if hi - lo >= period - 1e-9:
@@ -371,7 +371,7 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
     # candidates: direction + b (+180 is the same width), unwrap sequentially
     c1 = (direction + b1).tolist()
     c2 = (direction + b2).tolist()
-    reach = machine.kind == "ttr" and machine.angle_max - machine.angle_min < per - 1e-9
+    reach = machine.has_rotary and not machine.covers_period(per)
     if not reach:
         out = chain_nearest(np.asarray(c1, dtype=float), np.asarray(c2, dtype=float),
                             float(per), float(previous))
@@ -462,7 +462,7 @@ def plan_orientations(
         prepared_target = fp.grown_target(target, options.tolerance)
     pieces = fp.convex_pieces(nozzle)
     period = nozzle.symmetry_period
-    turns = machine.kind == "ttr" and period != 0.0
+    turns = machine.turns(nozzle)
     per = period if turns else 360.0
     direction = np.degrees(np.arctan2(p1[:, 1] - p0[:, 1], p1[:, 0] - p0[:, 0]))
     scale = None
@@ -543,7 +543,7 @@ def plan_orientations(
     if turns and n > 1:
         angle = _smooth(angle, bad, c1, c2, per, previous, prepared_target, pieces, p0, p1,
                         scale, machine, workers=workers)
-        if machine.kind == "ttr" and machine.angle_max - machine.angle_min >= per - 1e-9:
+        if machine.covers_period(per):
             angle = _least_turning(angle, rows, c1, c2, direction, widths, per, previous,
                                    prepared_target, pieces, p0, p1, scale, chained, beta,
                                    wtab, options, workers=workers)
@@ -730,7 +730,7 @@ def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scal
     n = len(angle)
     is_searched = np.zeros(n, dtype=bool)
     is_searched[np.asarray(searched, dtype=np.int64)] = True
-    reach = machine.kind == "ttr" and machine.angle_max - machine.angle_min < per - 1e-9
+    reach = machine.has_rotary and not machine.covers_period(per)
     prop = smooth_chain(np.asarray(angle, dtype=float), np.asarray(c1, dtype=float),
                         np.asarray(c2, dtype=float), is_searched, bool(reach), float(per),
                         float(previous))
@@ -756,7 +756,7 @@ def _other_solution(pick, c1, c2, per, machine):
     alt = raw + per * np.round((pick - raw) / per)
     same = np.minimum(d1, d2) > 1e-9  # the pick is neither (out of reach: clipped)
     same |= np.abs(np.mod(alt - pick + per / 2, per) - per / 2) < 1e-9
-    if machine.kind == "ttr" and machine.angle_max - machine.angle_min < per - 1e-9:
+    if machine.has_rotary and not machine.covers_period(per):
         same |= ~_reachable(alt, machine, per)
     return np.where(same, pick, alt)
 

@@ -181,3 +181,19 @@ def test_auto_engine_choice():
     assert choose_engine(ellipse, xy, small) == "exact"
     assert choose_engine(ellipse, ttr, small) == "raster"
     assert choose_engine(ellipse, polar, small) == "sampled"
+
+
+def test_which_machines_turn_which_nozzles_is_said_once():
+    """Machine.turns: a rotary axis and a nozzle that is not round; covers_period: the
+    range reaches every orientation of the nozzle."""
+    from printability.machine import parse_machine
+    from printability.nozzle import parse_nozzle
+
+    ellipse, circle = parse_nozzle("ellipse:major=0.8,minor=0.3"), parse_nozzle("circle:d=0.4")
+    ttr, xy = parse_machine("ttr"), parse_machine("xy")
+    assert ttr.turns(ellipse) and not ttr.turns(circle)
+    assert not xy.turns(ellipse) and not xy.turns(circle)
+    assert ttr.covers_period(180.0) and ttr.covers_period(360.0)
+    narrow = parse_machine("ttr:min=0,max=90")
+    assert narrow.turns(ellipse) and not narrow.covers_period(180.0)
+    assert narrow.covers_period(90.0) and not xy.covers_period(180.0)
