@@ -768,6 +768,9 @@ _EXACT = 2e-3
 #: _SHORT_SLACK (mm) from the plan in :func:`_least_turning` (E follows the width laid)
 _SHORT = 1.0
 _SHORT_SLACK = 0.1
+#: moves no longer than this fraction of their planned width may lay any width (see
+#: :func:`_least_turning`), their width error weighed by their own length
+_TINY = 0.5
 #: what :func:`_least_turning` counts a turn made standing still (a full stop of the XY
 #: motion on real firmware) and a reversal of the turning sense along a path as, in
 #: degrees of turn
@@ -826,6 +829,12 @@ def _least_turning(angle, rows, c1, c2, direction, widths, per, previous, target
     length = np.hypot(*(p1 - p0).T)
     allowed = np.where(length <= _SHORT, np.maximum(own, _SHORT_SLACK),
                        np.where(own <= _EXACT, _EXACT, np.maximum(own, options.width_slack)))
+    # a move no longer than half its planned width is mostly the footprint's own cap: the
+    # width it lays along its length means nothing, any orientation that fits will do (on
+    # the calibration cube, links of 20-50 µm at the ends of infill lines each cost a 36°
+    # turn standing still)
+    tiny = length <= _TINY * np.nan_to_num(widths, nan=0.0)
+    allowed = np.where(tiny, np.inf, allowed)
     keep = whole[:, None] & (err <= allowed[:, None] + 1e-9)
     # the same orientation twice (modulo the period) is tested once
     distinct_candidates(np.ascontiguousarray(np.mod(cols, per)), keep, float(per))
@@ -850,8 +859,8 @@ def _least_turning(angle, rows, c1, c2, direction, widths, per, previous, target
         last = np.append(pm[1:] != pm[:-1], True)
         cand_in[pm[first], 0] = pa[first]
         cand_out[pm[last], 0] = pa[last]
-    cost = np.where(keep, 10.0 * np.maximum(length, 1.0)[:, None] * err
-                    / max(options.width_slack, 1e-9), 0.0)
+    weight = np.where(tiny, length, np.maximum(length, 1.0))
+    cost = np.where(keep, 10.0 * weight[:, None] * err / max(options.width_slack, 1e-9), 0.0)
     folds = _fold_table(cand_in, cand_out, chained, per, options)
     # where the turn into each move is made: along the move, or its first piece
     ta, tb = p0, p1
