@@ -43,7 +43,8 @@ import shapely.affinity
 from printability.errors import PrintabilityOSError, PrinterError
 from printability.layers import LayerStack
 
-__all__ = ["DEFAULT_NOZZLES", "DEMO_PART", "DemoLayer", "DemoResult", "run_demo"]
+__all__ = ["DEFAULT_NOZZLES", "DEMO_PART", "LAYER_COLUMNS", "DemoLayer", "DemoResult",
+           "format_layer_table", "run_demo"]
 
 DEMO_PART = Path(__file__).parent / "data" / "demo" / "comb.stl"
 """The bundled part: a comb with fins 0.5, 0.7, 0.9, 1.2, 1.6, 2.0 and 2.5 mm wide."""
@@ -162,7 +163,7 @@ def run_demo(
     machine
         Machine SPEC or profile (the simulator gets the same).
     layer_height
-        Slicing of mesh inputs, mm.
+        Slicing of mesh inputs (STL, 3MF, OBJ), mm; other inputs keep their own layers.
     faults, seed
         Faults to inject into the simulated link (e.g. ``"corrupt~0.01,drop-ok~0.005"``).
     on_step
@@ -204,14 +205,15 @@ def run_demo(
     source = Path(part) if part is not None else DEMO_PART
     mach = resolve_machine(machine)
     step(f"layers: {source.name}")
-    layers = _centered(load_layers(source, layer_height=layer_height), mach.bed)
+    # a mesh is sliced at layer_height; drawings, maps and G-code bring their own layers
+    sliced = source.suffix.lower() in (".stl", ".3mf", ".obj")
+    layers = _centered(load_layers(source, layer_height=layer_height if sliced else None),
+                       mach.bed)
 
     step(f"analysis: {len(layers)} layers × {len(nozzles)} nozzles on {mach.name}")
     analysis = analyze(layers, list(nozzles), mach, keep_results=True)
     best = analysis.nozzles[0]
-    ranking = tuple({"rank": n.rank, "nozzle": n.nozzle.spec, "lost_area": n.lost_area,
-                     "lost_fraction": n.lost_fraction, "as_built_area": n.as_built_area,
-                     "target_area": n.target_area} for n in analysis.nozzles)
+    ranking = tuple(_ranking_row(n) for n in analysis.nozzles)
 
     step(f"G-code: {best.nozzle.spec} (ranked first)")
     text, gen = generate_gcode(layers, best.nozzle, mach, options=GenerateOptions(center=False))
@@ -250,11 +252,64 @@ def run_demo(
                         len(record.stats.get("lost_in_reset", ())))
     doc = _json(result, analysis, record)
     files.append(_write_atomic(out / "report.json", json.dumps(doc, indent=1) + "\n"))
-    png = _figure(layers, best, record)
+    png = _figure(layers, analysis, record)
     if png is not None:
         files.append(_write_atomic(out / "layers.png", png))
     files.append(_write_atomic(out / "report.html", _html(result, png is not None)))
     return replace(result, files=tuple(files), elapsed=time.perf_counter() - t0)
+
+
+def _ranking_row(n: Any) -> dict[str, Any]:
+    """One nozzle's line of the ranking: areas summed over the layers (mm², the keys the
+    report has always had) and, for several layers with heights, the volumes ``analyze``
+    ranks by (mm³), each with its certified bounds."""
+    from printability.ranking import totals
+
+    area = totals(n.layers, volume=False)
+    row: dict[str, Any] = {
+        "rank": n.rank, "nozzle": n.nozzle.spec, "lost_area": n.lost_area,
+        "lost_area_bounds": list(area.lost_bounds), "lost_fraction": n.lost_fraction,
+        "as_built_area": n.as_built_area, "target_area": n.target_area}
+    t = totals(n.layers)
+    if t.quantity == "volume":
+        row.update(lost_volume=t.lost, lost_volume_bounds=list(t.lost_bounds),
+                   target_volume=t.target, lost_volume_fraction=t.lost_fraction)
+    return row
+
+
+LAYER_COLUMNS: tuple[tuple[str, str], ...] = (
+    ("z", "mm"), ("target G", "mm²"), ("predicted S", "mm²"), ("deposited D", "mm²"),
+    ("D outside G", "mm²"), ("D covers G", "%"), ("D covers S", "%"))
+"""The per-layer comparison's columns and their units (the page's table and the terminal's)."""
+
+
+def _layer_cells(row: DemoLayer) -> tuple[str, ...]:
+    return (f"{row.z:.2f}", f"{row.target_area:.2f}", f"{row.predicted_area:.2f}",
+            f"{row.deposited_area:.2f}", f"{row.outside_area:.4f}",
+            f"{100 * row.covered_target:.1f}", f"{100 * row.covered_prediction:.1f}")
+
+
+def format_layer_table(rows: Sequence[DemoLayer]) -> str:
+    """The per-layer comparison as fixed-width text, each column headed by its unit.
+
+    Parameters
+    ----------
+    rows
+        The demo's layers (:attr:`DemoResult.layers`).
+
+    Returns
+    -------
+    str
+        A header of two lines (names, then units) and one line per layer, no final newline.
+    """
+    cells = [_layer_cells(r) for r in rows]
+    widths = [max(len(name), len(unit) + 2, *(len(c[i]) for c in cells))
+              for i, (name, unit) in enumerate(LAYER_COLUMNS)]
+    lines = ["  ".join(name.rjust(w) for (name, _), w in zip(LAYER_COLUMNS, widths, strict=True)),
+             "  ".join(f"({unit})".rjust(w)
+                       for (_, unit), w in zip(LAYER_COLUMNS, widths, strict=True))]
+    lines += ["  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in cells]
+    return "\n".join(lines)
 
 
 def _layer_at(record: Any, z: float, tol: float) -> Any:
@@ -292,7 +347,16 @@ def _json(result: DemoResult, analysis: Any, record: Any) -> dict[str, Any]:
     }
 
 
-def _figure(layers: LayerStack, best: Any, record: Any) -> bytes | None:
+_MAX_FIGURE_LAYERS = 6
+"""The figure shows at most this many layers (spread over the part)."""
+
+_DEPOSITED, _OUTSIDE = "#7b3294", "#000000"
+"""The deposition's colours: what the simulator laid, and any of it outside G."""
+
+
+def _figure(layers: LayerStack, analysis: Any, record: Any) -> bytes | None:
+    """Per layer, side by side: each candidate nozzle's prediction (S, and what it loses),
+    then what the simulator deposited with the printed nozzle (the first ranked)."""
     try:
         import matplotlib
 
@@ -300,40 +364,66 @@ def _figure(layers: LayerStack, best: Any, record: Any) -> bytes | None:
         import matplotlib.pyplot as plt
     except ImportError:
         return None
-    from printability.geometry import polygons_of
+    import numpy as np
+    from matplotlib.patches import Patch
+
+    from printability.report import COLORS, draw_geometry, draw_layer, is_inner_bound
 
     n = len(layers)
-    fig, axes = plt.subplots(n, 1, figsize=(9, 2.6 * n), squeeze=False)
+    shown = sorted(set(np.linspace(0, n - 1, min(n, _MAX_FIGURE_LAYERS)).round().astype(int)))
+    nozzles = analysis.nozzles
+    x0, y0, x1, y1 = shapely.union_all([lay.region for lay in layers]).bounds
+    pad = 0.04 * max(x1 - x0, y1 - y0)
+    aspect = (y1 - y0 + 2 * pad) / (x1 - x0 + 2 * pad)
+    cols = len(nozzles) + 1
+    panel_w = 4.2
+    fig, axes = plt.subplots(len(shown), cols, squeeze=False,
+                             figsize=(panel_w * cols, 0.9 + len(shown) * (panel_w * aspect + 0.5)))
     tol = 0.5 * min((lay.height for lay in layers if lay.height > 0), default=1.0)
-
-    def draw(ax, geom, **kw) -> None:
-        for poly in polygons_of(geom):
-            for ring in (poly.exterior, *poly.interiors):
-                x, y = ring.xy
-                ax.fill(x, y, **kw) if kw.get("fill", True) else ax.plot(x, y, **kw)
-
-    for ax, lay, outcome in zip(axes[:, 0], layers, best.layers, strict=True):
-        draw(ax, lay.region, color="0.85", label="target G")
+    best = nozzles[0]
+    for row, i in zip(axes, shown, strict=True):
+        lay = layers[i]
+        for ax, noz in zip(row, nozzles, strict=False):
+            o = noz.layers[i]
+            draw_geometry(ax, lay.region, COLORS["target"], zorder=0)
+            draw_layer(ax, o, lay.region, numbers=False)
+            ax.set_title(f"{noz.nozzle.spec}{' (printed)' if noz is best else ''}\n"
+                         f"z = {lay.z:.2f} mm: lost {o.lost_area:.3g} mm² "
+                         f"[{o.lost_area_bounds[0]:.3g}, {o.lost_area_bounds[1]:.3g}]",
+                         fontsize=8)
+        ax = row[-1]
+        draw_geometry(ax, lay.region, COLORS["target"], zorder=0)
         dep = _layer_at(record, lay.z, tol)
+        d_area = outside_area = 0.0
         if dep is not None:
-            draw(ax, dep.region, color="tab:orange", alpha=0.6, label="deposited D")
+            draw_geometry(ax, dep.region, _DEPOSITED, zorder=2)
+            d_area = dep.region.area
             outside = dep.region.difference(lay.region.buffer(1e-3))
-            if not outside.is_empty:
-                draw(ax, outside, color="red", label="outside G")
-        s = outcome.result.as_built if outcome.result is not None else None
-        if s is not None:
-            for poly in polygons_of(s):
-                for ring in (poly.exterior, *poly.interiors):
-                    x, y = ring.xy
-                    ax.plot(x, y, color="tab:blue", lw=0.8)
-        ax.plot([], [], color="tab:blue", lw=0.8, label="predicted S")
-        ax.set_title(f"z = {lay.z:.2f} mm", fontsize=9)
-        ax.set_aspect("equal")
-        ax.tick_params(labelsize=7)
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    uniq = dict(zip(labels, handles, strict=False))
-    fig.legend(uniq.values(), uniq.keys(), loc="upper right", fontsize=8)
-    fig.tight_layout()
+            outside_area = outside.area
+            draw_geometry(ax, outside, _OUTSIDE, edge=_OUTSIDE, zorder=3)
+        ax.set_title(f"deposited by the simulator ({best.nozzle.spec})\n"
+                     f"z = {lay.z:.2f} mm: {d_area:.4g} mm², outside G {outside_area:.2g} mm²",
+                     fontsize=8)
+        for a in row:
+            a.set_xlim(x0 - pad, x1 + pad)
+            a.set_ylim(y0 - pad, y1 + pad)
+            a.set_aspect("equal")
+            a.tick_params(labelsize=7)
+    inner = any(o.result is not None and is_inner_bound(o.result)
+                for noz in nozzles for o in noz.layers)
+    handles = [Patch(color=COLORS["target"], label="target G"),
+               Patch(color=COLORS["as_built"], label="predicted S"),
+               Patch(color=COLORS["lost"], label="lost (G \\ S)"),
+               *([Patch(color=COLORS["uncertain"], label="not proven printed (S_inner)")]
+                 if inner else []),
+               Patch(color=_DEPOSITED, label="deposited D"),
+               Patch(color=_OUTSIDE, label="D outside G")]
+    title = ("Prediction per nozzle and deposition, mm"
+             + (f" ({len(shown)} of {n} layers)" if len(shown) < n else ""))
+    fig.suptitle(title, fontsize=10)
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8,
+               frameon=False)
+    fig.tight_layout(rect=(0, 0.05, 1, 0.97))
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
@@ -352,24 +442,38 @@ def _lost_note(result: DemoResult) -> str:
 def _html(result: DemoResult, figure: bool) -> str:
     e = html.escape
     s = result.stream
+    volume = bool(result.ranking) and "lost_volume" in result.ranking[0]
+    key, unit = ("lost_volume", "mm³") if volume else ("lost_area", "mm²")
+    frac = "lost_volume_fraction" if volume else "lost_fraction"
+    rank_head = "".join(f"<th>{e(h)}</th>" for h in (
+        "rank", "nozzle", f"lost {unit}", "lost %", f"bounds {unit}",
+        *(("lost area mm² (Σ layers)", "bounds mm² (Σ layers)") if volume else ())))
     rank_rows = "".join(
-        f"<tr><td>{r['rank']}</td><td>{e(r['nozzle'])}</td><td>{r['lost_area']:.3f}</td>"
-        f"<td>{100 * r['lost_fraction']:.2f} %</td></tr>" for r in result.ranking)
-    layer_rows = "".join(
-        f"<tr><td>{r.z:.2f}</td><td>{r.target_area:.2f}</td><td>{r.predicted_area:.2f}</td>"
-        f"<td>{r.deposited_area:.2f}</td><td>{r.outside_area:.4f}</td>"
-        f"<td>{100 * r.covered_target:.1f} %</td><td>{100 * r.covered_prediction:.1f} %</td></tr>"
-        for r in result.layers)
-    img = '<p><img src="layers.png" alt="layers"></p>' if figure else (
+        f"<tr><td>{r['rank']}</td><td>{e(r['nozzle'])}</td><td>{r[key]:.4g}</td>"
+        f"<td>{100 * r[frac]:.2f}</td><td>[{r[key + '_bounds'][0]:.4g}, "
+        f"{r[key + '_bounds'][1]:.4g}]</td>"
+        + (f"<td>{r['lost_area']:.4g}</td><td>[{r['lost_area_bounds'][0]:.4g}, "
+           f"{r['lost_area_bounds'][1]:.4g}]</td>" if volume else "")
+        + "</tr>" for r in result.ranking)
+    what = ("each layer's lost area G \\ S times its height, summed; bounds: its certified "
+            "interval" if volume else "the lost area G \\ S, summed over the layers; bounds: "
+            "its certified interval")
+    layer_head = "".join(f"<th>{e(name)} ({e(u)})</th>" for name, u in LAYER_COLUMNS)
+    layer_rows = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in _layer_cells(r)) + "</tr>"
+                         for r in result.layers)
+    img = ('<p><img src="layers.png" alt="prediction per nozzle and deposition, per layer">'
+           '</p>') if figure else (
         "<p>(no figure: matplotlib is not installed — pip install 'printability[report]')</p>")
     return f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>printability demo</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:.2em .6em;text-align:right}}
+img{{max-width:100%}}
 </style></head><body>
 <h1>printability demo: {e(result.nozzle)} on {e(result.machine)}</h1>
-<h2>1–2. Nozzle ranking (lost area over all layers)</h2>
-<table><tr><th>rank</th><th>nozzle</th><th>lost mm²</th><th>lost</th></tr>{rank_rows}</table>
+<h2>1–2. Nozzle ranking (lost {'volume' if volume else 'area'} over all layers)</h2>
+<table><tr>{rank_head}</tr>{rank_rows}</table>
+<p>Lost: {e(what)}. The figure below shows each nozzle's prediction.</p>
 <h2>3. G-code</h2><p>{result.gcode_lines} commands with the rotary axis:
 <a href="part.gcode">part.gcode</a>. {' '.join(e(n) for n in result.notes)}</p>
 <h2>4. Streamed to the simulator</h2>
@@ -378,9 +482,8 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:.2em .6em;
 The simulator executed exactly the file: <b>{'yes' if result.log_matches else 'NO'}</b>.
 {_lost_note(result)}
 Transcript: <a href="serial.log">serial.log</a>; record: <a href="record.json">record.json</a>.</p>
-<h2>5. Target, prediction and deposition (mm²)</h2>
-<table><tr><th>z mm</th><th>target G</th><th>predicted S</th><th>deposited D</th>
-<th>D outside G</th><th>D covers G</th><th>D covers S</th></tr>{layer_rows}</table>
+<h2>5. Target, prediction and deposition per layer</h2>
+<table><tr>{layer_head}</tr>{layer_rows}</table>
 <p>MMC violations reported by the simulator: {result.violations}.</p>
 {img}
 </body></html>

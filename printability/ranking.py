@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -33,7 +34,8 @@ from printability.errors import InputError
 from printability.mmc.result import MMCResult
 from printability.nozzle import Nozzle
 
-__all__ = ["DEFAULT_SPEED", "RankRow", "bead_width_for_time", "rank", "rank_order"]
+__all__ = ["DEFAULT_SPEED", "RankRow", "Totals", "bead_width_for_time", "rank", "rank_order",
+           "totals", "uses_volume"]
 
 DEFAULT_SPEED = 40.0
 """Deposition speed of the build-time model, mm/s (a typical perimeter/infill speed)."""
@@ -85,6 +87,81 @@ class RankRow:
     bead_width: float
     build_time: float
     components: int
+
+
+class _LayerAreas(Protocol):
+    """One layer's figures, as :class:`printability.analysis.LayerOutcome` holds them."""
+
+    height: float
+    target_area: float
+    lost_area: float
+    lost_area_bounds: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Totals:
+    """What a nozzle loses over a part, in one unit: the figures every table shows.
+
+    Attributes
+    ----------
+    quantity
+        ``"area"`` (mm², one layer, or layers without a height: areas summed) or
+        ``"volume"`` (mm³: each layer's area times its height, summed).
+    unit
+        ``"mm²"`` or ``"mm³"``.
+    target, lost
+        λ(G) and λ(G \\ S) in that unit (the engine's best estimate of the loss).
+    lost_bounds
+        The certified interval (lo, hi) of ``lost``, in the same unit.
+    """
+
+    quantity: str
+    unit: str
+    target: float
+    lost: float
+    lost_bounds: tuple[float, float]
+
+    @property
+    def lost_fraction(self) -> float:
+        """lost / target (0 for an empty target)."""
+        return self.lost / self.target if self.target > 0 else 0.0
+
+
+def uses_volume(heights: Sequence[float]) -> bool:
+    """Whether a part's totals are volumes: several layers, each with a height.
+
+    One layer is reported as an area, and so are layers without a height (drawings,
+    maps), whose volume would be zero.
+    """
+    return len(heights) > 1 and all(h > 0 for h in heights)
+
+
+def totals(layers: Sequence[_LayerAreas], *, volume: bool | None = None) -> Totals:
+    """Sum one nozzle's per-layer figures in the part's unit.
+
+    Parameters
+    ----------
+    layers
+        The nozzle's layers (each with ``height``, ``target_area``, ``lost_area``,
+        ``lost_area_bounds``).
+    volume
+        Volumes (area × height) or areas; None chooses with :func:`uses_volume`.
+
+    Returns
+    -------
+    Totals
+        Target, lost and the lost bounds, all in one unit.
+    """
+    if volume is None:
+        volume = uses_volume([o.height for o in layers])
+    w = [o.height if volume else 1.0 for o in layers]
+    return Totals(
+        quantity="volume" if volume else "area", unit="mm³" if volume else "mm²",
+        target=float(sum(o.target_area * k for o, k in zip(layers, w, strict=True))),
+        lost=float(sum(o.lost_area * k for o, k in zip(layers, w, strict=True))),
+        lost_bounds=(float(sum(o.lost_area_bounds[0] * k for o, k in zip(layers, w, strict=True))),
+                     float(sum(o.lost_area_bounds[1] * k for o, k in zip(layers, w, strict=True)))),
+    )
 
 
 def bead_width_for_time(nozzle: Nozzle, *, rotary: bool) -> float:

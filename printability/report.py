@@ -9,6 +9,12 @@ slices); the components of P in colour; and, for several layers, the lost
 area per layer. Figures are PNG files beside the page and embedded in it, so
 the page can be mailed alone.
 
+Colours follow the numbers: red (lost) only where an engine's S says material is lost, on
+a layer whose lost area is not 0; the raster engine's S is its certified *inner* bound, so
+what it leaves out is orange (not proven printed), with the estimate and the bounds in the
+legend. Totals use one unit (:func:`printability.ranking.totals`): volumes (mm³) for
+several layers with heights, areas (mm²) otherwise.
+
 Needs matplotlib (the ``report`` extra).
 """
 
@@ -31,10 +37,11 @@ from printability.analysis import Analysis, LayerOutcome, NozzleAnalysis
 from printability.errors import InputError
 from printability.geometry import Raster, polygons_of
 
-__all__ = ["lost_pieces", "write_report"]
+__all__ = ["COLORS", "draw_geometry", "draw_layer", "is_inner_bound", "lost_pieces", "write_report"]
 
-_COLORS = {"target": "#d9d9d9", "as_built": "#4c9be8", "lost": "#e8514c", "p": "#2ca25f",
-           "uncertain": "#f0a030"}
+COLORS = {"target": "#d9d9d9", "as_built": "#4c9be8", "lost": "#e8514c", "p": "#2ca25f",
+          "uncertain": "#f0a030"}
+"""The figures' colours (the demo's report uses the same)."""
 
 
 def _pyplot():
@@ -50,14 +57,38 @@ def _pyplot():
     return plt
 
 
-def _draw(ax, geom: BaseGeometry | None, color: str, *, alpha: float = 1.0, label=None,
-          zorder: float = 1.0, edge: str = "none") -> None:
+def draw_geometry(ax, geom: BaseGeometry | None, color: str, *, alpha: float = 1.0, label=None,
+                  zorder: float = 1.0, edge: str = "none") -> None:
+    """Fill a shapely geometry on a matplotlib axis, its holes left empty.
+
+    Parameters
+    ----------
+    ax
+        The matplotlib axis.
+    geom
+        Polygons (anything :func:`printability.geometry.polygons_of` reads); None or
+        empty draws nothing.
+    color, alpha, zorder
+        The fill.
+    label
+        Legend entry (given to the first polygon only).
+    edge
+        Outline colour (``"none"``: no outline).
+
+    Notes
+    -----
+    matplotlib fills a path by the non-zero winding rule, so a hole wound like its
+    exterior (as rasters, drawings and GeoJSON may give them) would be filled: each
+    polygon is oriented first, exterior counter-clockwise and holes clockwise.
+    """
     from matplotlib.patches import PathPatch
     from matplotlib.path import Path as MplPath
+    from shapely.geometry.polygon import orient
 
     if geom is None or geom.is_empty:
         return
     for k, poly in enumerate(polygons_of(geom)):
+        poly = orient(poly, 1.0)
         verts, codes = [], []
         for ring in (poly.exterior, *poly.interiors):
             xy = np.asarray(ring.coords)
@@ -117,35 +148,87 @@ def _worst_layer(n: NozzleAnalysis) -> LayerOutcome:
     return max(n.layers, key=lambda o: (o.lost_area, -o.index))
 
 
-def _fig_layer(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> bytes:
+def is_inner_bound(r) -> bool:
+    """Whether a result's S geometry is an inner bound, not the S its figures measure."""
+    return r.engine == "raster" or (
+        r.as_built is not None
+        and abs(r.as_built.area - r.as_built_area) > 1e-6 * max(1.0, r.target_area))
+
+
+def draw_layer(ax, o: LayerOutcome, target: BaseGeometry, *, numbers: bool = True) -> None:
+    """Draw one nozzle's result on one layer: S, and what it leaves out, in the colours
+    that match the numbers.
+
+    Parameters
+    ----------
+    ax
+        The matplotlib axis.
+    o
+        The layer's outcome (with its engine result, or None when the nozzle fits nowhere).
+    target
+        The layer G.
+    numbers
+        Put the areas in the legend labels (a figure with one panel); without, the labels
+        are the same on every panel, for one legend shared by several.
+
+    Notes
+    -----
+    Red (lost) is drawn only on a layer whose lost area is not 0, and only where S leaves
+    G out by more than the micrometre band of a certified S. An S that is an inner bound
+    (the raster engine's S_inner) leaves out what is merely not proven printed: orange, with
+    the estimate and the certified bounds in the label.
+    """
     from matplotlib.colors import ListedColormap
 
-    fig, ax = plt.subplots(figsize=(6.5, 5.5))
     r = o.result
+    lo, hi = o.lost_area_bounds
+
+    def lost_label() -> str:
+        return f"lost (G \\ S): {o.lost_area:.3g} mm²" if numbers else "lost (G \\ S)"
+
+    def uncertain_label(area: float | None) -> str:
+        if not numbers:
+            return "not proven printed (G \\ S_inner)"
+        what = "G \\ S_inner" if area is None else f"G \\ S_inner, {area:.3g} mm²"
+        return (f"not proven printed ({what}): the estimate loses {o.lost_area:.3g} mm², "
+                f"certified [{lo:.3g}, {hi:.3g}]")
+
     if r is not None and r.as_built is not None:
-        _draw(ax, r.as_built, _COLORS["as_built"], label="as built (S)")
-        # an edge keeps thin lost slivers visible at page scale
+        draw_geometry(ax, r.as_built, COLORS["as_built"], label="as built (S)")
         lost, salient = lost_pieces(target, r.as_built, resolution=r.resolution)
-        # a raster engine's vector S is its certified inner bound: what it leaves out is
-        # lost or merely uncertain (the reported loss is an estimate inside the bounds)
-        inner = abs(r.as_built.area - r.as_built_area) > 1e-6 * max(1.0, r.target_area)
-        color = _COLORS["uncertain"] if inner else _COLORS["lost"]
-        label = ("G \\ S_inner: lost or uncertain" if inner else "lost (G \\ S)")
-        _draw(ax, lost, color, zorder=3)
-        _draw(ax, salient, color, edge=color, label=label, zorder=3)
-        if salient.is_empty:
-            ax.plot([], [], color=color, lw=8, label=label)
-    else:
-        _draw(ax, target, _COLORS["lost"], label="lost (G \\ S)", zorder=0)
-        if r is not None and r.as_built_raster is not None:
-            # S known only as pixels: paint them over the target in the as-built colour
-            _show_raster(ax, Raster(r.as_built_raster.grid,
-                                    r.as_built_raster.data.astype(np.uint8)),
-                         ListedColormap([_COLORS["as_built"]]))
-            ax.plot([], [], color=_COLORS["as_built"], lw=8, label="as built (S, pixels)")
+        if is_inner_bound(r):
+            # what an inner bound leaves out is not proven printed, and the estimate of the
+            # loss is not a region the result keeps
+            label = uncertain_label(lost.area)
+            draw_geometry(ax, lost, COLORS["uncertain"], label=label, zorder=3)
+            if lost.is_empty:
+                ax.plot([], [], color=COLORS["uncertain"], lw=8, label=label)
+        elif o.lost_area > 0:
+            # an edge keeps thin lost slivers visible at page scale; the micrometre band of
+            # a certified S along the whole boundary is neither filled nor outlined
+            draw_geometry(ax, salient, COLORS["lost"], edge=COLORS["lost"], label=lost_label(),
+                  zorder=3)
+            if salient.is_empty:
+                ax.plot([], [], color=COLORS["lost"], lw=8, label=lost_label())
+    elif r is not None and r.as_built_raster is not None:
+        # S known only as pixels (the raster engine's inner bound): paint them over the
+        # target, which shows through where S_inner does not reach
+        draw_geometry(ax, target, COLORS["uncertain"], label=uncertain_label(None), zorder=0)
+        _show_raster(ax, Raster(r.as_built_raster.grid, r.as_built_raster.data.astype(np.uint8)),
+                     ListedColormap([COLORS["as_built"]]))
+        ax.plot([], [], color=COLORS["as_built"], lw=8, label="as built (S_inner, pixels)")
+    else:  # the nozzle fits nowhere in the layer: all of it is lost
+        draw_geometry(ax, target, COLORS["lost"], label=lost_label(), zorder=0)
+
+
+def _fig_layer(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> bytes:
+    fig, ax = plt.subplots(figsize=(6.5, 5.5))
+    draw_layer(ax, o, target)
     _frame(ax, target)
     ax.set_title(title)
-    ax.legend(loc="best", fontsize=8, framealpha=0.8)
+    # below the axes: inside, the legend's swatches would stand on the drawing (a red
+    # swatch in the middle of a part that loses only its corners)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=8, frameon=False)
     data = _png(fig)
     plt.close(fig)
     return data
@@ -160,35 +243,35 @@ def _fig_motion(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> bytes
     n_slices = min(3, len(angles)) if len(angles) > 1 else 0
     fig, axes = plt.subplots(1, 1 + n_slices, figsize=(5.5 * (1 + n_slices), 5), squeeze=False)
     ax = axes[0, 0]
-    _draw(ax, target, _COLORS["target"], zorder=0)
+    draw_geometry(ax, target, COLORS["target"], zorder=0)
     if m.count is not None:
         im = _show_raster(ax, m.count, "viridis")
         fig.colorbar(im, ax=ax, shrink=0.8, label="angles that fit")
         ax.set_title(f"P: where how many of {len(angles)} angles fit")
     elif m.regions is not None:
         if len(m.regions) == 1:
-            _draw(ax, m.regions[0], _COLORS["p"])
+            draw_geometry(ax, m.regions[0], COLORS["p"])
             ax.set_title("P: positions of the nozzle origin")
         else:
             # count of angles per position, drawn as overlapping translucent layers
             alpha = max(0.02, min(0.5, 3.0 / len(m.regions)))
             for reg in m.regions:
-                _draw(ax, reg, _COLORS["p"], alpha=alpha)
+                draw_geometry(ax, reg, COLORS["p"], alpha=alpha)
             ax.set_title(f"P over {len(angles)} angles (darker: more angles fit)")
     _frame(ax, target)
     for j in range(n_slices):
         k = round(j * (len(angles) - 1) / max(1, n_slices - 1)) if n_slices > 1 else 0
         ax = axes[0, 1 + j]
-        _draw(ax, target, _COLORS["target"], zorder=0)
+        draw_geometry(ax, target, COLORS["target"], zorder=0)
         if m.regions is not None:
-            _draw(ax, m.regions[k], _COLORS["p"])
+            draw_geometry(ax, m.regions[k], COLORS["p"])
         else:
             mask = _mask_at(m, k)
             if mask is not None:
                 from matplotlib.colors import ListedColormap
 
                 _show_raster(ax, Raster(mask.grid, mask.data.astype(np.uint8)),
-                             ListedColormap([_COLORS["p"]]))
+                             ListedColormap([COLORS["p"]]))
         _frame(ax, target)
         ax.set_title(f"P at φ = {angles[k]:.1f}°")
     fig.suptitle(title)
@@ -211,10 +294,10 @@ def _fig_components(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> b
     if r is None or not r.components.geometries:
         return None
     fig, ax = plt.subplots(figsize=(6.5, 5.5))
-    _draw(ax, target, _COLORS["target"], zorder=0)
+    draw_geometry(ax, target, COLORS["target"], zorder=0)
     cmap = plt.get_cmap("tab20")
     for i, geom in enumerate(r.components.geometries):
-        _draw(ax, geom, cmap(i % 20))
+        draw_geometry(ax, geom, cmap(i % 20))
     _frame(ax, target)
     ax.set_title(f"{title}: {r.components.count} component(s) of P")
     data = _png(fig)
@@ -222,8 +305,55 @@ def _fig_components(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> b
     return data
 
 
+def _fig_overview(plt, analysis: Analysis) -> tuple[bytes, float]:
+    """Every nozzle on one layer, side by side: the layer where some nozzle loses most.
+
+    Returns the PNG and that layer's z.
+    """
+    from matplotlib.patches import Patch
+
+    nozzles = analysis.nozzles
+    i = max(range(len(analysis.layers)),
+            key=lambda k: (max(n.layers[k].lost_area for n in nozzles), -k))
+    target = analysis.layers[i].region
+    cols = min(len(nozzles), 4)
+    rows = -(-len(nozzles) // cols)
+    x0, y0, x1, y1 = target.bounds
+    aspect = min(2.0, max(0.25, (y1 - y0) / max(x1 - x0, 1e-9)))  # panels shaped like the part
+    fig, axes = plt.subplots(rows, cols, squeeze=False,
+                             figsize=(4.2 * cols, (3.4 * aspect + 1.1) * rows + 0.5))
+    used = {"target", "as_built"}
+    for ax in axes.flat[len(nozzles):]:
+        ax.set_visible(False)
+    for ax, n in zip(axes.flat, nozzles, strict=False):
+        o = n.layers[i]
+        draw_geometry(ax, target, COLORS["target"], zorder=0)
+        draw_layer(ax, o, target, numbers=False)
+        if o.result is not None and is_inner_bound(o.result):
+            used.add("uncertain")
+        elif o.lost_area > 0:
+            used.add("lost")
+        lo, hi = o.lost_area_bounds
+        ax.set_title(f"#{n.rank} {n.nozzle.spec}\nlost {o.lost_area:.3g} mm² "
+                     f"[{lo:.3g}, {hi:.3g}]", fontsize=9)
+        _frame(ax, target)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.label.set_size(8)
+        ax.yaxis.label.set_size(8)
+    names = {"target": "target G", "as_built": "as built (S)", "lost": "lost (G \\ S)",
+             "uncertain": "not proven printed (G \\ S_inner)"}
+    fig.legend(handles=[Patch(color=COLORS[k], label=v) for k, v in names.items() if k in used],
+               loc="lower center", ncol=4, fontsize=8, frameon=False,
+               bbox_to_anchor=(0.5, 0.0))
+    fig.suptitle(f"All nozzles on the layer z = {analysis.layers[i].z:g} mm", fontsize=10)
+    fig.tight_layout(rect=(0, 0.08, 1, 0.97), h_pad=0.5, w_pad=0.5)
+    data = _png(fig)
+    plt.close(fig)
+    return data, analysis.layers[i].z
+
+
 def _fig_per_layer(plt, analysis: Analysis) -> bytes:
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig, ax = plt.subplots(figsize=(7, 3))
     for n in analysis.nozzles:
         ax.plot([o.z for o in n.layers], [o.lost_area for o in n.layers], marker=".",
                 label=n.nozzle.spec)
@@ -238,19 +368,31 @@ def _fig_per_layer(plt, analysis: Analysis) -> bytes:
 
 
 def _geojson(n: NozzleAnalysis, analysis: Analysis) -> dict[str, Any]:
+    """The as-built layers as GeoJSON features, each saying what its geometry is.
+
+    A raster result's geometry is S_inner, the certified inner bound, while its
+    ``as_built_area`` and ``lost_area`` are the engine's estimates: ``geometry_is`` and
+    ``geometry_area`` tell them apart.
+    """
     feats = []
     for o, layer in zip(n.layers, analysis.layers, strict=True):
         geom = None
+        what = "S"
         if o.result is not None and o.result.as_built is not None:
             geom = o.result.as_built
+            if is_inner_bound(o.result):
+                what = "S_inner (certified inner bound: printed for sure)"
         elif o.result is None:
             geom = shapely.MultiPolygon()
         if geom is None:
             continue
         feats.append({"type": "Feature", "geometry": mapping(geom),
                       "properties": {"z": layer.z, "height": layer.height,
+                                     "geometry_is": what, "geometry_area": float(geom.area),
                                      "as_built_area": o.as_built_area,
-                                     "lost_area": o.lost_area, "nozzle": n.nozzle.spec}})
+                                     "lost_area": o.lost_area,
+                                     "lost_area_bounds": list(o.lost_area_bounds),
+                                     "nozzle": n.nozzle.spec}})
     return {"type": "FeatureCollection", "features": feats}
 
 
@@ -270,20 +412,54 @@ def _svg(geom: BaseGeometry, target: BaseGeometry) -> str:
             f'viewBox="0 0 {w:.4f} {h:.4f}"><g fill="#4c9be8">{"".join(paths)}</g></svg>\n')
 
 
-def _mesh(n: NozzleAnalysis, analysis: Analysis) -> bytes | None:
-    import trimesh
+_MESH_EPSILON = 1e-4
+"""The exported solid is S pulled in by this much, its vertices at least this far apart, mm."""
 
-    parts = []
+
+def _mesh(n: NozzleAnalysis, analysis: Analysis) -> bytes | None:
+    """The as-built layers as one closed solid, a binary STL (None when nothing is built).
+
+    Each layer's S is extruded over its height and the prisms are united (manifold3d), so
+    the faces where two layers touch disappear: a watertight, 2-manifold mesh a slicer or
+    a CAD program reads as closed bodies, not a stack of prisms sharing faces. S is pulled
+    in by :data:`_MESH_EPSILON` (0.1 µm) so that parts touching at a point or an edge stay
+    apart.
+    """
+    import trimesh
+    from manifold3d import CrossSection, FillRule, JoinType, Manifold, OpType
+
+    solids = []
     for o, layer in zip(n.layers, analysis.layers, strict=True):
         if o.result is None or o.result.as_built is None or layer.height <= 0:
             continue
-        for poly in polygons_of(o.result.as_built):
-            m = trimesh.creation.extrude_polygon(poly, layer.height)
-            m.apply_translation((0, 0, layer.z - layer.height))
-            parts.append(m)
-    if not parts:
+        contours = [np.asarray(ring.coords, dtype=float)[:-1]
+                    for poly in polygons_of(o.result.as_built)
+                    for ring in (poly.exterior, *poly.interiors)]
+        # Pulled in by 0.1 µm: parts of S that touch at a corner or along an edge (and
+        # layers that touch only along an edge) would share an edge among four triangles,
+        # which an STL cannot tell from a pinched body; vertices closer than 0.1 µm would
+        # fall together in its float32 coordinates.
+        section = (CrossSection(contours, FillRule.EvenOdd)
+                   .offset(-_MESH_EPSILON, JoinType.Miter).simplify(_MESH_EPSILON)
+                   if contours else None)
+        if section is None or section.is_empty():
+            continue
+        # rounded, so that a layer's bottom is exactly the top of the one below (the union
+        # would keep a sliver between 0.4 and 0.6 - 0.2 = 0.39999999999999997)
+        top, bottom = round(layer.z, 6), round(layer.z - layer.height, 6)
+        solids.append(Manifold.extrude(section, top - bottom).translate((0.0, 0.0, bottom)))
+    if not solids:
         return None
-    return trimesh.util.concatenate(parts).export(file_type="stl")
+    mesh = Manifold.batch_boolean(solids, OpType.Add).to_mesh64()
+    # The STL stores float32: round first, merge the vertices that meet (a reader does the
+    # same) and drop the triangles that collapse, so the file itself is closed.
+    verts = np.asarray(mesh.vert_properties)[:, :3].astype(np.float32).astype(np.float64)
+    solid = trimesh.Trimesh(verts, np.asarray(mesh.tri_verts, dtype=np.int64), process=False)
+    solid.merge_vertices()
+    f = solid.faces
+    solid.update_faces((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]))
+    solid.remove_unreferenced_vertices()
+    return solid.export(file_type="stl")
 
 
 def _img(name: str, data: bytes, alt: str) -> str:
@@ -299,19 +475,25 @@ def write_report(analysis: Analysis, out_dir: str | Path) -> Path:
     Every file is written atomically. Returns the path of ``index.html``.
     """
     from printability.cli.common import write_atomic
+    from printability.ranking import totals, uses_volume
 
     plt = _pyplot()
     out = Path(out_dir)
     sections = []
     rows = []
+    volume = uses_volume([lay.height for lay in analysis.layers])
+    any_inner = False
     for n in analysis.nozzles:
-        lo, hi = n.lost_area_bounds
+        t = totals(n.layers, volume=volume)
+        area = totals(n.layers, volume=False)
+        lo, hi = t.lost_bounds
         rows.append(
             f"<tr><td>{n.rank}</td><td><code>{html.escape(n.nozzle.spec)}</code></td>"
-            f"<td>{n.lost_area:.4g}</td><td>{100 * n.lost_fraction:.2f}</td>"
-            f"<td>[{lo:.4g}, {hi:.4g}]</td><td>{n.components}</td>"
-            + (f"<td>{n.volume('lost_area'):.4g}</td>" if analysis.multi_layer else "")
-            + "</tr>")
+            f"<td>{t.lost:.4g}</td><td>{100 * t.lost_fraction:.2f}</td>"
+            f"<td>[{lo:.4g}, {hi:.4g}]</td>"
+            + (f"<td>{area.lost:.4g}</td><td>[{area.lost_bounds[0]:.4g}, "
+               f"{area.lost_bounds[1]:.4g}]</td>" if volume else "")
+            + f"<td>{n.components}</td></tr>")
         slug = f"nozzle{n.rank}"
         worst = _worst_layer(n)
         target = analysis.layers[worst.index].region
@@ -336,22 +518,44 @@ def write_report(analysis: Analysis, out_dir: str | Path) -> Path:
             if mesh is not None:
                 write_atomic(out / f"{slug}_as_built.stl", mesh)
                 links.append(f"{slug}_as_built.stl")
+        inner = any(o.result is not None and is_inner_bound(o.result) for o in n.layers)
+        any_inner = any_inner or inner
         notes = "".join(f"<li>{html.escape(t)}</li>" for t in
                         (worst.result.notes if worst.result is not None else (worst.note,)) if t)
+        w_lo, w_hi = worst.lost_area_bounds
         sections.append(
             f"<section><h2>#{n.rank}: <code>{html.escape(n.nozzle.spec)}</code></h2>"
-            f"<p>Lost {n.lost_area:.4g} mm² of {n.target_area:.4g} mm² "
-            f"({100 * n.lost_fraction:.2f} %), bounds [{lo:.4g}, {hi:.4g}] mm². "
-            f"Figures show the layer that loses most (z = {worst.z:g} mm).</p>"
-            f"{''.join(figs)}<ul>{notes}</ul><p>Geometry: "
+            f"<p>Lost {t.lost:.4g} {t.unit} of {t.target:.4g} {t.unit} "
+            f"({100 * t.lost_fraction:.2f} %), certified bounds [{lo:.4g}, {hi:.4g}] {t.unit}"
+            + (" (the engine's estimate within them)" if inner else "") + ". "
+            f"Figures show the layer that loses most: z = {worst.z:g} mm, lost "
+            f"{worst.lost_area:.4g} mm², bounds [{w_lo:.4g}, {w_hi:.4g}] mm².</p>"
+            f"{''.join(figs)}<ul>{notes}</ul><p>Geometry"
+            + (" (the certified inner bound S_inner: printed for sure; the figures above are "
+               "the estimate)" if inner else "") + ": "
             + ", ".join(f'<a href="{html.escape(x)}">{html.escape(x)}</a>' for x in links)
             + "</p></section>")
+    overview = ""
+    if len(analysis.nozzles) > 1:
+        data, z = _fig_overview(plt, analysis)
+        write_atomic(out / "overview.png", data)
+        overview = _img("overview.png", data, f"every nozzle on the layer z = {z:g} mm")
     per_layer = ""
     if analysis.multi_layer:
         data = _fig_per_layer(plt, analysis)
         write_atomic(out / "lost_per_layer.png", data)
         per_layer = _img("lost_per_layer.png", data, "lost area per layer")
-    vol_head = "<th>lost mm³</th>" if analysis.multi_layer else ""
+    unit = "mm³" if volume else "mm²"
+    heads = [f"lost {unit}", "lost %", f"bounds {unit}"]
+    if volume:
+        heads += ["lost area mm² (Σ layers)", "bounds mm² (Σ layers)"]
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in ("rank", "nozzle", *heads,
+                                                           "components"))
+    what = ("Lost: the volume of G \\ S, each layer's lost area times its height, summed."
+            if volume else "Lost: the area of G \\ S"
+            + (", summed over the layers." if analysis.multi_layer else "."))
+    uncertain_key = (f'<span style="background:{COLORS["uncertain"]}"></span>not proven '
+                     "printed (outside a raster engine's certified inner S)" if any_inner else "")
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8">
 <title>printability report — {html.escape(analysis.input)}</title>
@@ -367,11 +571,13 @@ machine <code>{html.escape(analysis.machine.spec)}</code>,
 engine {html.escape(analysis.engine)}, resolution {analysis.settings.resolution:g} mm,
 {len(analysis.layers)} layer(s), computed in {analysis.elapsed:.2f} s
 by printability {__version__}.</p>
-<p class="key"><span style="background:{_COLORS['as_built']}"></span>as built (S)
-<span style="background:{_COLORS['lost']}"></span>lost (G \\ S)
-<span style="background:{_COLORS['p']}"></span>motion restriction P</p>
-<table><tr><th>rank</th><th>nozzle</th><th>lost mm²</th><th>lost %</th><th>bounds mm²</th>
-<th>components</th>{vol_head}</tr>{''.join(rows)}</table>
+<p class="key"><span style="background:{COLORS['as_built']}"></span>as built (S)
+<span style="background:{COLORS['lost']}"></span>lost (G \\ S)
+{uncertain_key}
+<span style="background:{COLORS['p']}"></span>motion restriction P</p>
+<table><tr>{head}</tr>{''.join(rows)}</table>
+<p>{html.escape(what)} Bounds: the certified interval of that figure.</p>
+{overview}
 {per_layer}
 {''.join(sections)}
 </body></html>

@@ -10,6 +10,7 @@ from printability.cli.common import (
     choices_help,
     note_default_layer_height,
     progress_callback,
+    spec_epilog,
     write_json_atomic,
 )
 from printability.options import ENGINES
@@ -21,12 +22,12 @@ def analyze_command(
     input: Path = typer.Argument(..., help="Part: .gcode, .stl/.3mf/.obj, .svg/.dxf/.geojson/"  # noqa: B008
                                  ".wkt, a slice-outline .txt or a multi-layer slice SVG."),
     nozzle: list[str] = typer.Option(  # noqa: B008
-        ["circle:d=0.4"], "--nozzle", "-n",
-        help="Nozzle SPEC, repeatable: circle:d=0.4, ellipse:major=0.8,minor=0.3, "
-             "rect:w=0.8,h=0.3, polygon:FILE.svg; ',angle=DEG' sets the mounting angle."),
-    machine: str = typer.Option("xy", "--machine", "-m",
-                                help="Machine SPEC: xy, ttr, ttr:min=-90,max=90,step=1, a built-in "
-                                     "profile (polar, scara) or a TOML file."),
+        ["circle:d=0.4"], "--nozzle", "-n", metavar="SPEC",
+        help="A candidate nozzle, repeatable: circle:d=0.4, ellipse:major=0.8,minor=0.3, "
+             "rect:w=0.8,h=0.3, polygon:FILE.svg (all forms below)."),
+    machine: str = typer.Option("xy", "--machine", "-m", metavar="SPEC",
+                                help="The machine: xy, ttr, ttr:min=-90,max=90, a built-in "
+                                     "profile or a TOML file (below)."),
     resolution: float = typer.Option(0.05, "--resolution", help="Raster grid spacing, mm."),
     angle_step: float | None = typer.Option(None, "--angle-step",
                                             help="Rotary sampling step, degrees (default: the "
@@ -65,7 +66,8 @@ def analyze_command(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
     """Compute, per layer and per nozzle, the motion restriction P, the as-built layer S and
-    what is lost; print the nozzles ranked by lost area."""
+    what is lost; print the nozzles ranked by what they lose (area for one layer, volume for
+    several)."""
     from printability.analysis import analyze, select_layers
     from printability.settings import Settings
     from printability.sources import load_layers
@@ -140,26 +142,58 @@ def _parse_box(text: str) -> tuple[float, float, float, float]:
     return values  # type: ignore[return-value]
 
 
-def print_ranking(result) -> None:
-    """The ranking table on stdout (rich)."""
-    from rich.console import Console
+def ranking_table(result):
+    """The ranking as a rich Table: one unit throughout (module :mod:`printability.ranking`).
+
+    Several layers with heights are compared by volume, so the lost amount, its share and
+    its certified bounds are all volumes (mm³); one layer, or layers without a height, by
+    area (mm²).
+
+    Parameters
+    ----------
+    result : printability.analysis.Analysis
+        The ranked analysis.
+
+    Returns
+    -------
+    rich.table.Table
+    """
+    from rich import box
     from rich.table import Table
 
-    multi = result.multi_layer
+    from printability.ranking import totals, uses_volume
+
+    volume = uses_volume([lay.height for lay in result.layers])
+    unit = "mm³" if volume else "mm²"
+    n_layers = len(result.layers)
+    what = (f"lost volume: Σ over {n_layers} layers of the lost area × the layer height"
+            if volume else "lost area" + (f": Σ over {n_layers} layers" if n_layers > 1 else ""))
     table = Table(title=f"{result.input} — machine {result.machine.spec}, engine {result.engine}, "
-                        f"{len(result.layers)} layer(s)")
-    for col in ("rank", "nozzle", "lost mm³" if multi else "lost mm²", "lost %",
-                "bounds (area mm²)", "components", "build time"):
-        table.add_column(col, justify="left" if col == "nozzle" else "right")
+                        f"{n_layers} layer(s)",
+                  caption=f"{what}; bounds: the certified interval of that figure",
+                  box=box.SIMPLE_HEAD, pad_edge=False)
+    # in a narrow terminal the headers wrap, never the nozzle SPEC: a reader copies it
+    widest = max((len(n.nozzle.spec) for n in result.nozzles), default=6)
+    table.add_column("rank", justify="right")
+    table.add_column("nozzle", justify="left", no_wrap=True, min_width=min(widest, 48))
+    for col in (f"lost\n{unit}", "lost\n%", f"bounds\n{unit}", "compo-\nnents", "build\ntime"):
+        table.add_column(col, justify="right", overflow="fold")
     for n in result.nozzles:
-        lost = n.volume("lost_area") if multi else n.lost_area
-        lo, hi = n.lost_area_bounds
-        table.add_row(str(n.rank), n.nozzle.spec, f"{lost:.4g}", f"{100 * n.lost_fraction:.2f}",
+        t = totals(n.layers, volume=volume)
+        lo, hi = t.lost_bounds
+        table.add_row(str(n.rank), n.nozzle.spec, f"{t.lost:.4g}", f"{100 * t.lost_fraction:.2f}",
                       f"[{lo:.4g}, {hi:.4g}]", str(n.components), _duration(n.build_time))
+    return table
+
+
+def print_ranking(result) -> None:
+    """The ranking table (:func:`ranking_table`) on stdout."""
     import sys
 
+    from rich.console import Console
+
     # a pipe or a file gets the whole table, not one wrapped to 80 columns
-    Console(width=None if sys.stdout.isatty() else 140).print(table)
+    Console(width=None if sys.stdout.isatty() else 140).print(ranking_table(result))
 
 
 def _duration(seconds: float) -> str:
@@ -169,4 +203,5 @@ def _duration(seconds: float) -> str:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("analyze")(analyze_command)
+    """Add ``analyze`` to the ``printability`` command."""
+    app.command("analyze", epilog=spec_epilog())(analyze_command)

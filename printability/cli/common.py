@@ -17,8 +17,56 @@ from typing import Any
 from printability.errors import PrintabilityOSError, StoppedError
 from printability.options import Registry
 
-__all__ = ["choices_help", "note_default_layer_height", "progress_callback",
-           "stop_signals_raise", "write_atomic", "write_json_atomic"]
+__all__ = ["MACHINE_SPEC_HELP", "NOZZLE_SPEC_HELP", "choices_help", "note_default_layer_height",
+           "progress_callback", "spec_epilog", "stop_signals_raise", "write_atomic",
+           "write_json_atomic"]
+
+# The full SPEC syntax, printed once below a command's options (click keeps a paragraph that
+# starts with \b as written): an option's own help stays one or two short lines, and no
+# example is folded into a narrow column at 80 columns.
+NOZZLE_SPEC_HELP = """Nozzle SPEC (--nozzle):
+
+\b
+  circle:d=0.4                         round orifice, 0.4 mm across
+  ellipse:major=0.8,minor=0.3          elliptical orifice, its two axes
+  rect:w=0.8,h=0.3                     rectangular orifice
+  polygon:FILE.svg                     any outline, read from a drawing
+  polygon:pts=0 0;1 0;1 0.3            any outline, from its vertices
+  ellipse:major=0.8,minor=0.3,angle=30 mounted turned by 30°
+  rect:w=0.8,h=0.3,x=1,y=0             1 mm off the rotation axis
+  circle:d=0.4,x=-1+circle:d=0.4,x=1   two orifices on one head"""
+"""Nozzle SPEC syntax for a command's epilog (see :func:`spec_epilog`)."""
+
+MACHINE_SPEC_HELP = """Machine SPEC (--machine):
+
+\b
+  xy                                   X and Y only: the nozzle never turns
+  ttr                                  X, Y and a rotary axis turning it
+  ttr:min=-90,max=90,step=1            a rotary axis limited to ±90°,
+                                       sampled every 1°
+  ttr-klipper, polar, scara            built-in profiles
+  my_printer.toml                      a machine file, as documented in
+                                       printability/data/machines/ttr.toml
+
+Lengths are in mm, angles in degrees."""
+"""Machine SPEC syntax for a command's epilog (see :func:`spec_epilog`)."""
+
+
+def spec_epilog(*, nozzle: bool = True, machine: bool = True) -> str:
+    """The SPEC syntax a command's ``--help`` ends with.
+
+    Parameters
+    ----------
+    nozzle, machine
+        Include the nozzle / machine SPEC syntax.
+
+    Returns
+    -------
+    str
+        Paragraphs for click's ``epilog``: each table is kept as written, 80 columns wide.
+    """
+    return "\n\n".join(t for t, on in ((NOZZLE_SPEC_HELP, nozzle), (MACHINE_SPEC_HELP, machine))
+                       if on)
 
 
 def choices_help(registry: Registry, text: str) -> str:

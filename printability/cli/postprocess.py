@@ -12,7 +12,7 @@ from pathlib import Path
 
 import typer
 
-from printability.cli.common import choices_help, stop_signals_raise
+from printability.cli.common import choices_help, spec_epilog, stop_signals_raise
 from printability.options import E_POLICIES, FEED_POLICIES, SERVER_POLICIES
 
 __all__ = ["postprocess_command", "register"]
@@ -22,12 +22,13 @@ def postprocess_command(
     gcode: Path = typer.Argument(..., help="The slicer's G-code file (rewritten in place "  # noqa: B008
                                  "unless -o is given)."),
     nozzle: str | None = typer.Option(
-        None, "--nozzle", "-n",
-        help="Nozzle SPEC: ellipse:major=0.8,minor=0.3, rect:w=0.8,h=0.3, circle:d=0.4, "
-             "polygon:FILE.svg. Default: a round nozzle of the slicer's nozzle_diameter."),
-    machine: str = typer.Option("ttr", "--machine", "-m",
-                                help="Machine SPEC: ttr, ttr:min=-90,max=90, xy, a built-in "
-                                     "profile or a TOML file."),
+        None, "--nozzle", "-n", metavar="SPEC",
+        help="The nozzle: ellipse:major=0.8,minor=0.3, rect:w=0.8,h=0.3, circle:d=0.4, "
+             "polygon:FILE.svg (all forms below). Default: a round nozzle of the slicer's "
+             "nozzle_diameter."),
+    machine: str = typer.Option("ttr", "--machine", "-m", metavar="SPEC",
+                                help="The machine: ttr, ttr:min=-90,max=90, xy, a built-in "
+                                     "profile or a TOML file (below)."),
     output: Path | None = typer.Option(None, "--output", "-o",  # noqa: B008
                                        help="Write here instead of in place."),
     tolerance: float = typer.Option(1e-3, "--tolerance",
@@ -106,4 +107,4 @@ def postprocess_command(
 
 def register(app: typer.Typer) -> None:
     """Add ``postprocess`` to the ``printability`` command."""
-    app.command("postprocess")(postprocess_command)
+    app.command("postprocess", epilog=spec_epilog())(postprocess_command)

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from printability.cli.common import choices_help as _choices
+from printability.cli.common import spec_epilog
 from printability.options import FIRMWARE_PROFILES, SIM_CLOCKS
 
 if TYPE_CHECKING:
@@ -61,10 +62,11 @@ def simulate_command(
                                      help="Also make this symlink point at the pty."),
     profile: str = typer.Option("marlin", "--profile",
                                 help=_choices(FIRMWARE_PROFILES, "Firmware profile.")),
-    machine: str = typer.Option("ttr", "--machine", help="Machine SPEC or profile (rotary "
-                                                         "letter and limits, bed, feed policy)."),
-    nozzle: str = typer.Option("circle:d=0.4", "--nozzle", help="Nozzle SPEC whose footprint "
-                                                                "the deposition sweeps."),
+    machine: str = typer.Option("ttr", "--machine", metavar="SPEC",
+                                help="The machine (rotary letter and limits, bed, feed "
+                                     "policy; SPECs below)."),
+    nozzle: str = typer.Option("circle:d=0.4", "--nozzle", metavar="SPEC",
+                               help="The nozzle whose footprint the deposition sweeps."),
     clock: str = typer.Option("real", "--clock",
                               help=_choices(SIM_CLOCKS, "Time base.")),
     baud: int | None = typer.Option(None, "--baud", help="Pace the wire at this many bits per "
@@ -189,4 +191,4 @@ def _print_events(events: queue.SimpleQueue[str]) -> None:
 
 def register(app: typer.Typer) -> None:
     """Add the ``simulate`` subcommand to the CLI."""
-    app.command("simulate")(simulate_command)
+    app.command("simulate", epilog=spec_epilog())(simulate_command)
