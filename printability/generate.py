@@ -292,7 +292,9 @@ def generate_gcode(
     em.extend(_template(mach, "end", list(flavor.end_gcode()), temps))
     notes = [f"walls at {w_wall:g} mm, infill spacing {w_fill:g} mm, "
              f"{options.perimeters} perimeters",
-             "lost area = length no orientation can print x wall width"]
+             "lost area here = planned path left out (no nozzle angle keeps the bead inside "
+             "the part) x wall width, not analyze's lost area (the part no nozzle position "
+             "covers)"]
     if turns:
         notes.append(flavor.rotary_setup_note(mach.rotary_axis))
     body = em.text()

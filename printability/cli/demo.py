@@ -45,12 +45,9 @@ def demo_command(
     if result.lost_in_reset:
         typer.echo(f"the board's reset dropped {result.lost_in_reset} planned moves it had "
                    "acknowledged (as a real board would); the record lists them")
-    typer.echo(f"{'z mm':>6} {'target':>9} {'predicted':>10} {'deposited':>10} "
-               f"{'outside':>8} {'covers G':>9}")
-    for row in result.layers:
-        typer.echo(f"{row.z:6.2f} {row.target_area:9.2f} {row.predicted_area:10.2f} "
-                   f"{row.deposited_area:10.2f} {row.outside_area:8.4f} "
-                   f"{100 * row.covered_target:8.1f}%")
+    from printability.demo import format_layer_table
+
+    typer.echo(format_layer_table(result.layers))
     typer.echo(f"report: {result.report}")
 
 
