@@ -73,6 +73,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
@@ -322,13 +323,16 @@ def layer_regions(
         region = _beads_union(seg[a:b][good], w[good], settings.quad_segs)
         if wall is not None:
             on = good & wall[a:b]
-            walls = inside = None
-            if on.any():
-                walls = _beads_union(seg[a:b][on], w[on], settings.quad_segs)
-                inside = _wall_inside(seg[a:b][on], w[on])
-            region, facts["interior_filled"] = fill_interior(region, walls, inside)
+            key = np.column_stack([seg["x0"][a:b], seg["y0"][a:b], seg["x1"][a:b],
+                                   seg["y1"][a:b], w, on]).tobytes()
+            if key in filled:  # a layer repeating an earlier one to the bit (the cube's third)
+                region, facts["interior_filled"] = filled[key]
+            else:
+                walls = _WallLines.of(seg[a:b][on], w[on]) if on.any() else None
+                region, facts["interior_filled"] = filled[key] = fill_interior(region, walls)
         return li, region, facts
 
+    filled: dict[bytes, tuple[object, int]] = {}
     return _map_layers(one, len(g.layers), settings)
 
 
@@ -345,78 +349,103 @@ _SURE_GAP = 0.1
 between infill lines and inner walls, inside the object."""
 
 
-def _wall_inside(seg: np.ndarray, width: np.ndarray):
-    """The inside of the closed outer-wall loops, even-odd (a hole's loop inside a contour's
-    loop cuts it out), or None when no wall chain closes. A chain closes when it ends within
-    two bead widths of where it started (slicers leave a small gap at the seam)."""
-    if len(seg) == 0:
-        return None
-    chain = _chains(seg, np.zeros(len(seg)))
-    first = np.searchsorted(chain, np.arange(int(chain[-1]) + 2), side="left")
-    inside = None
-    for c in range(len(first) - 1):
-        a, b = first[c], first[c + 1]
-        xy = np.concatenate([[[seg["x0"][a], seg["y0"][a]]],
-                             np.column_stack([seg["x1"][a:b], seg["y1"][a:b]])])
-        if len(xy) < 4 or math.hypot(*(xy[-1] - xy[0])) > 2.0 * float(np.max(width[a:b])):
-            continue
-        loop = shapely.make_valid(shapely.Polygon(xy))
-        inside = loop if inside is None else shapely.symmetric_difference(inside, loop)
-    return inside
+@dataclass(frozen=True)
+class _WallLines:
+    """A layer's outer walls as :func:`fill_interior` reads them: their centre lines (one
+    line per chain), the largest half width, and the inside of their closed loops."""
+
+    lines: object
+    half_width: float
+    inside: object
+
+    @staticmethod
+    def of(seg: np.ndarray, width: np.ndarray) -> _WallLines:
+        chain = _chains(seg, np.zeros(len(seg)))
+        first = np.searchsorted(chain, np.arange(int(chain[-1]) + 2), side="left")
+        lines, inside = [], None
+        for c in range(len(first) - 1):
+            a, b = first[c], first[c + 1]
+            xy = np.concatenate([[[seg["x0"][a], seg["y0"][a]]],
+                                 np.column_stack([seg["x1"][a:b], seg["y1"][a:b]])])
+            lines.append(shapely.LineString(xy))
+            # a chain closes when it ends within two bead widths of where it started
+            # (slicers leave a small gap at the seam); the loops' inside is even-odd, so a
+            # hole's loop within a contour's cuts it out
+            if len(xy) >= 4 and math.hypot(*(xy[-1] - xy[0])) <= 2.0 * float(width[a:b].max()):
+                loop = shapely.make_valid(shapely.Polygon(xy))
+                inside = loop if inside is None else shapely.symmetric_difference(inside, loop)
+        multi = shapely.MultiLineString(lines)
+        shapely.prepare(multi)
+        return _WallLines(multi, float(width.max()) / 2.0, inside)
 
 
-def fill_interior(region, walls, inside=None) -> tuple[object, int]:
+def fill_interior(region, walls: _WallLines | None) -> tuple[object, int]:
     """``region`` with the gaps inside the object filled: (the region, gaps filled).
 
     A slicer traces every boundary of the object, outer contours and holes alike, with an
     outer wall (``;TYPE:External perimeter``, ``Outer wall``, ``WALL-OUTER``...). A hole of
     the bead union (``region``) is classified by the share of its boundary that runs along
-    those walls (``walls``, their bead union; within :data:`_ALONG` mm):
+    those walls (its edges whose ends lie within a wall's half width plus :data:`_ALONG` mm
+    of a wall's centre line):
 
     * at least :data:`_SURE_OWN`: the object's own hole, or a hollow the slicer keeps on
       purpose (a vase, 0 % infill): kept;
     * under :data:`_SURE_GAP`: a gap between infill lines and inner walls: filled;
     * in between (a sliver between an outer and an inner wall, a sparse gap beside a single
-      wall): filled only when it lies inside the walls' closed loops (``inside``, from
-      :func:`_wall_inside`, even-odd), kept otherwise or when that is unknown.
+      wall): filled only when it lies inside the walls' closed loops (even-odd), kept
+      otherwise or when no loop closes.
 
     Material the nozzle lays in a filled gap is inside the part, which is all the MMC
     promise asks (the slicer's E, hence the volume, is unchanged). Without outer walls (a
     file with no feature comments) nothing is known and nothing is filled.
 
-    Complexity: one buffer of the walls and one intersection per hole.
+    Complexity: one distance test per vertex of the holes; no overlay unless a filled gap
+    holds a separate piece of the object with holes of its own.
     """
-    if walls is None or walls.is_empty or region is None or region.is_empty:
+    if walls is None or region is None or region.is_empty:
         return region, 0
     polys = shapely.get_parts(region)
     rings = [(i, r) for i, p in enumerate(polys) if p.geom_type == "Polygon"
              for r in p.interiors]
     if not rings:
         return region, 0
-    near = shapely.buffer(walls, _ALONG, quad_segs=2)
-    shapely.prepare(near)
-    lines = np.array([shapely.LineString(r.coords) for _, r in rings], dtype=object)
-    share = shapely.length(shapely.intersection(lines, near)) / shapely.length(lines)
+    share = np.empty(len(rings))
+    for j, (_, r) in enumerate(rings):
+        xy = np.asarray(r.coords)
+        near = shapely.dwithin(shapely.points(xy), walls.lines, walls.half_width + _ALONG)
+        seg_len = np.hypot(*np.diff(xy, axis=0).T)
+        share[j] = seg_len[near[1:] & near[:-1]].sum() / max(seg_len.sum(), 1e-300)
     own = share >= _SURE_GAP
     unsure = np.flatnonzero(own & (share < _SURE_OWN))
-    if unsure.size and inside is not None and not inside.is_empty:
+    if unsure.size and walls.inside is not None and not walls.inside.is_empty:
         at = shapely.point_on_surface([shapely.Polygon(rings[j][1]) for j in unsure])
-        own[unsure[shapely.contains(inside, at)]] = False
+        own[unsure[shapely.contains(walls.inside, at)]] = False
     if own.all():
         return region, 0
-    # a filled gap may hold an island of the object with holes of its own (a hole's walls
-    # standing in sparse infill): those stay open
+    keep: dict[int, list] = {}
+    for (i, r), k in zip(rings, own, strict=True):
+        if k:
+            keep.setdefault(i, []).append(r)
     gaps = [shapely.Polygon(rings[j][1]) for j in np.flatnonzero(~own)]
+    # a piece of the region standing in a filled gap (an island) is now inside another
+    tree = shapely.STRtree(gaps)
+    at = shapely.point_on_surface(polys)
+    island = np.zeros(len(polys), bool)
+    pi, _ = tree.query(at, predicate="within")
+    island[pi] = True
+    if not any(island[i] and keep.get(i) for i in range(len(polys))):
+        out = [shapely.Polygon(p.exterior, keep.get(i, [])) for i, p in enumerate(polys)
+               if not island[i]]
+        return (out[0] if len(out) == 1 else shapely.MultiPolygon(out)), len(gaps)
+    # an island with holes of its own (a hole's walls standing in sparse infill): the gap
+    # is filled around them
     kept = [shapely.Polygon(rings[j][1]) for j in np.flatnonzero(own)]
-    kept_at = shapely.point_on_surface(kept) if kept else None
+    kept_at = shapely.point_on_surface(kept)
     fills = []
     for gap in gaps:
-        if kept:
-            inner = [k for k, c in zip(kept, shapely.contains(gap, kept_at), strict=True)
-                     if c and k.area < gap.area]
-            if inner:
-                gap = shapely.difference(gap, shapely.union_all(inner))
-        fills.append(gap)
+        inner = [k for k, c in zip(kept, shapely.contains(gap, kept_at), strict=True)
+                 if c and k.area < gap.area]
+        fills.append(shapely.difference(gap, shapely.union_all(inner)) if inner else gap)
     return shapely.union_all([region, *fills]), len(gaps)
 
 
