@@ -9,6 +9,10 @@ prusaslicer_ttr.ini``) and each shared slicer sample, side by side in one run:
 - **post-processed**: the same file after ``postprocess`` for ``ellipse:major=0.8,minor=0.3`` on
   the bundled ``ttr-klipper`` machine (C axis 360 °/s, 3600 °/s², corner velocity 30 °/s), the
   file registering its own axis;
+- **faster axis** (estimate): the same post-processing for the same machine with a rotary
+  axis twice as fast and four times as strong (720 °/s, 15 000 °/s²), timed by
+  :mod:`gcode.printtime` (Klipper's look-ahead, within 0.4 % of klippy on these files): how
+  much of the cost is the axis's limits, which the machine's owner sets in the profile;
 - **generated** (STLs only): ``generate`` of the same STL for the same nozzle and machine
   (it fills the interior solid, so it extrudes more than the slicer's 15 % infill: a different
   part, listed for the record).
@@ -81,6 +85,24 @@ def _rotation_only(run) -> tuple[int, float]:
     return int(sel.sum()), float(m["duration"][sel].sum())
 
 
+FAST = (720.0, 15000.0)  # °/s, °/s²: the "faster axis" column
+
+
+def _fast_profile(tmp: Path) -> Path:
+    """The bundled ttr-klipper profile with the rotary axis of :data:`FAST`."""
+    text = (ROOT / "printability" / "data" / "machines" / f"{MACHINE}.toml").read_text()
+    a = parse_machine(MACHINE).rotary_axis
+    for key, old, new in (("max_speed", a.max_speed, FAST[0]),
+                          ("acceleration", a.acceleration, FAST[1]),
+                          ("max_feed_rotary", a.max_speed, FAST[0]),
+                          ("rotary_acceleration", a.acceleration, FAST[1])):
+        text = text.replace(f"\n{key} = {old}", f"\n{key} = {new}")
+    path = tmp / "ttr-klipper-fast.toml"
+    path.write_text(text)
+    assert parse_machine(str(path)).rotary_axis.max_speed == FAST[0]
+    return path
+
+
 def _row(name: str, before: bytes, cfg: str, tmp: Path, stl: Path | None) -> dict:
     t0, r0 = _time(before, cfg)
     c0 = time.process_time()
@@ -92,6 +114,9 @@ def _row(name: str, before: bytes, cfg: str, tmp: Path, stl: Path | None) -> dic
     row = {"name": name, "slicer": t0, "post": t1, "ratio": t1 / t0, "pp_cpu": pp_cpu,
            "stops0": _stops(r0), "stops1": _stops(r1), "rot_only": n_rot, "rot_only_s": t_rot,
            "new_errors": len(r1.errors) - len(r0.errors)}
+    _, fast = postprocess_bytes(before, options=PostprocessOptions(
+        nozzle=NOZZLE, machine=str(_fast_profile(tmp))))
+    row["fast"] = fast.print_time_out / fast.print_time_in
     if stl is not None:
         out = tmp / "gen.gcode"
         generate_file(stl, out, NOZZLE, MACHINE, layer_height=0.2)
@@ -131,13 +156,17 @@ def main(argv: list[str] | None = None) -> int:
     ratios = [r["ratio"] for r in rows]
     print(f"\npost-processed / slicer on Klipper's planner: {min(ratios):.2f}x .. "
           f"{max(ratios):.2f}x (median {float(np.median(ratios)):.2f}x) over {len(rows)} files")
+    fast = [r["fast"] for r in rows]
+    print(f"with a rotary axis of {FAST[0]:g} °/s and {FAST[1]:g} °/s² (estimate): "
+          f"{min(fast):.2f}x .. {max(fast):.2f}x (median {float(np.median(fast)):.2f}x)")
     return 0
 
 
 def _print(r: dict) -> None:
     gen = f", generated {r['generated']:.0f} s" if "generated" in r else ""
     print(f"{r['name']:<42} slicer {r['slicer']:8.1f} s  post-processed {r['post']:8.1f} s  "
-          f"{r['ratio']:5.2f}x  (full stops {r['stops0']} -> {r['stops1']}, rotation-only "
+          f"{r['ratio']:5.2f}x  [faster axis {r['fast']:4.2f}x]  "
+          f"(full stops {r['stops0']} -> {r['stops1']}, rotation-only "
           f"moves {r['rot_only']} = {r['rot_only_s']:.0f} s; post-processing "
           f"{r['pp_cpu']:.1f} s CPU{gen})", flush=True)
 
