@@ -218,7 +218,8 @@ def _run(exe: str, names: list[str], tmp: Path, args, address: str,
          server: subprocess.Popen) -> int:
     warm = tmp / "warm.gcode"
     slice_part(exe, DATA / "CalibrationCube.stl", warm)
-    postprocess(warm.read_bytes()[:200_000], ELLIPSE)
+    head = warm.read_bytes()[:200_000]
+    postprocess(head[:head.rfind(b"\n") + 1], ELLIPSE)  # whole lines: a cut one is refused
     # the plugin's start: a new process on the cube's first two layers (every kernel
     # loaded, almost no work)
     tiny = tmp / "two_layers.gcode"
