@@ -33,10 +33,14 @@ def demo_command(
 
     result = run_demo(out, part=part, nozzles=nozzle, machine=machine, faults=faults, seed=seed,
                       on_step=lambda m: typer.echo(f"demo: {m}", err=True))
-    typer.echo("nozzles ranked by lost area:")
+    # the same quantity and unit as analyze's table: a volume over several layers
+    volume = bool(result.ranking) and "lost_volume" in result.ranking[0]
+    key, unit, frac = (("lost_volume", "mm³", "lost_volume_fraction") if volume
+                       else ("lost_area", "mm²", "lost_fraction"))
+    typer.echo(f"nozzles ranked by lost {'volume' if volume else 'area'}:")
     for r in result.ranking:
-        typer.echo(f"  {r['rank']}. {r['nozzle']:32} lost {r['lost_area']:9.3f} mm² "
-                   f"({100 * r['lost_fraction']:.2f} %)")
+        typer.echo(f"  {r['rank']}. {r['nozzle']:32} lost {r[key]:9.4g} {unit} "
+                   f"({100 * r[frac]:.2f} %)")
     s = result.stream
     typer.echo(f"printed {result.nozzle} on {result.machine}: {s.acknowledged}/{s.total} "
                f"commands, {s.resends} resends, {s.timeouts} timeouts, {s.reconnects} "
