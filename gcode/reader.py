@@ -42,7 +42,14 @@ from gcode._machine import ERR_MESSAGES, run_machine
 from gcode.arcs import linearise
 from gcode.dialects import CommentInfo, feature_category, scan_comments
 from gcode.line import ParsedLine, parse_line
-from printability.errors import FileFormatError, InputError, PrintabilityOSError, ResourceError
+from printability.errors import (
+    EXCERPT_LENGTH,
+    FileFormatError,
+    InputError,
+    PrintabilityOSError,
+    ResourceError,
+    excerpt,
+)
 from printability.options import FLAVORS
 from printability.settings import DEFAULT_SETTINGS, Settings
 
@@ -384,23 +391,21 @@ def _refuse_bad_numbers(data: bytes, lines: np.ndarray, words: np.ndarray, path:
         unit = "mm/min" if letter == "F" else "mm"
         lim = MAX_FEED if letter == "F" else MAX_COORDINATE
         what = f"{letter} out of range (expected a finite number up to {lim:g} {unit})"
-    s0, e0 = int(lines["start"][li]), int(lines["content_end"][li])
-    excerpt = data[s0:min(e0, s0 + 60)].decode("ascii", "backslashreplace")
-    if e0 - s0 > 60:
-        excerpt += "..."
-    msg = f"this move has {what}; found {excerpt!r}"
+    msg = f"this move has {what}; found {_line_excerpt(data, lines, li)}"
     if li == len(lines) - 1 and not data.endswith((b"\n", b"\r")):
         msg = "the file ends in the middle of a line (truncated?): " + msg
     raise FileFormatError(path, msg, line=li + 1)
 
 
+def _line_excerpt(data: bytes, lines: np.ndarray, li: int) -> str:
+    """The start of line ``li`` quoted for a message (:func:`printability.errors.excerpt`),
+    without copying the rest of a line that may be megabytes long."""
+    s0, e0 = int(lines["start"][li]), int(lines["content_end"][li])
+    return excerpt(data[s0:min(e0, s0 + EXCERPT_LENGTH + 1)])
+
+
 def _raise_move_error(data, lines, err, li, path) -> None:
-    s = lines["start"][li]
-    e = lines["content_end"][li]
-    text = data[s:e].decode("utf-8", "replace")
-    if len(text) > 80:
-        text = text[:77] + "..."
-    msg = f"{ERR_MESSAGES[err]}; found {text!r}"
+    msg = f"{ERR_MESSAGES[err]}; found {_line_excerpt(data, lines, int(li))}"
     if li == len(lines) - 1 and not data.endswith((b"\n", b"\r")):
         msg = "the file ends in the middle of a line (truncated?): " + msg
     raise FileFormatError(path, msg, line=int(li) + 1)

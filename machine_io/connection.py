@@ -22,9 +22,40 @@ from machine_io.protocol import (
     parse_temperatures,
 )
 from machine_io.transport import LineReader, open_port
-from printability.errors import PrinterError
+from printability.errors import PrinterError, excerpt
 
 __all__ = ["ConnectionMixin"]
+
+_HINT = ("A board that restarts in a loop (its power supply, a crashing firmware) or a baud "
+         "rate that does not match its firmware's sends lines that are never an answer; "
+         "check both (the baud rate now is ")
+
+
+class _Heard:
+    """What the printer said while connecting: how many lines, how many ``start``
+    banners, the last line (for the messages)."""
+
+    def __init__(self) -> None:
+        self.t0 = time.monotonic()
+        self.lines = 0
+        self.starts = 0
+        self.last = ""
+
+    def add(self, text: str) -> None:
+        self.lines += 1
+        if text.lower() == "start":
+            self.starts += 1
+        self.last = text
+
+    def summary(self) -> str:
+        """``"; it sent 812 lines in 60 s, none an answer (…); the last: 'echo:…'"``."""
+        if not self.lines:
+            return "; it sent nothing"
+        restarts = (f", {self.starts} of them 'start' (it restarted {self.starts} times)"
+                    if self.starts > 1 else "")
+        return (f"; it sent {self.lines} line(s) in {time.monotonic() - self.t0:.0f} s"
+                f"{restarts}, the last {excerpt(self.last)}")
+
 
 
 class ConnectionMixin:
@@ -47,6 +78,9 @@ class ConnectionMixin:
     def connect(self) -> FirmwareInfo:
         """Open the port, wait for the banner, synchronise line numbers, read capabilities.
 
+        All of it ends within ``config.connect_timeout`` seconds, however much the
+        printer talks (a board in a reset loop, noise at a wrong baud rate).
+
         Returns
         -------
         FirmwareInfo
@@ -57,14 +91,16 @@ class ConnectionMixin:
         PrintabilityOSError
             The port cannot be opened.
         PrinterError
-            The printer does not answer the handshake.
+            The printer does not answer the handshake, or the connection takes longer
+            than ``config.connect_timeout``; the message says what it heard.
         """
         if self._port is None:
             self.open()
-        self._banner_seen = self._wait_banner(self.config.banner_timeout)
-        self._handshake()
-        m115 = self._query("M115", lambda r: r.kind in ("firmware", "cap"))
-        m114 = self._query("M114", lambda r: r.kind == "position")
+        with self._connecting():
+            self._banner_seen = self._wait_banner(self.config.banner_timeout)
+            self._handshake()
+            m115 = self._query("M115", lambda r: r.kind in ("firmware", "cap"))
+            m114 = self._query("M114", lambda r: r.kind == "position")
         position = None
         for line in m114:
             position = parse_position(line) or position
@@ -72,6 +108,32 @@ class ConnectionMixin:
         self._note(f"connected to {self.firmware.name or 'an unnamed firmware'} on "
                    f"{self.port_name}" + (" (after its start banner)" if self._banner_seen else ""))
         return self.firmware
+
+    @contextlib.contextmanager
+    def _connecting(self) -> Iterator[None]:
+        """Within the block every wait also ends at ``config.connect_timeout`` from now,
+        and the lines received are counted for the messages."""
+        self._connect_deadline = time.monotonic() + self.config.connect_timeout
+        self._heard = _Heard()
+        try:
+            yield
+        finally:
+            self._connect_deadline = None
+
+    def _until(self, deadline: float) -> float:
+        """``deadline``, or the connection's overall deadline if that comes first."""
+        overall = self._connect_deadline
+        return deadline if overall is None else min(deadline, overall)
+
+    def _check_connect_deadline(self, doing: str) -> None:
+        overall = self._connect_deadline
+        if overall is None or time.monotonic() < overall:
+            return
+        raise PrinterError(
+            f"the printer on {self.port_name} did not complete the connection within "
+            f"{self.config.connect_timeout:g} s (--connect-timeout) while {doing}"
+            f"{self._heard.summary()}; nothing of the file was sent. {_HINT}"
+            f"{self.config.baud}).")
 
     def _write(self, data: bytes) -> None:
         self._reader.write(data)
@@ -83,21 +145,25 @@ class ConnectionMixin:
             return None
         text = raw.decode("utf-8", errors="replace").strip()
         self.transcript.write("Recv", text)
+        if self._connect_deadline is not None:
+            self._heard.add(text)
         return text
 
     def _replies(self, deadline: float) -> Iterator[Reply]:
-        """The replies that arrive until ``deadline``, each parsed and observed.
+        """The replies that arrive until ``deadline`` (or the connection's overall
+        deadline), each parsed and observed.
 
         The deadline holds even for a board that never stops talking (the
         reader hands out complete lines without looking at the clock).
         """
+        deadline = self._until(deadline)
         while time.monotonic() < deadline and (line := self._readline(deadline)) is not None:
             reply = parse_reply(line)
             self._observe(reply)
             yield reply
 
     def _wait_banner(self, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
+        deadline = self._until(time.monotonic() + timeout)
         # A board in a boot loop or a noisy line never goes quiet: every wait has an end.
         while time.monotonic() < deadline:
             line = self._readline(deadline)
@@ -106,7 +172,7 @@ class ConnectionMixin:
             reply = parse_reply(line)
             if reply.kind == "start":
                 # Drain the rest of the banner quickly (it arrives in one burst).
-                end = time.monotonic() + max(1.0, timeout)
+                end = self._until(time.monotonic() + max(1.0, timeout))
                 quiet = time.monotonic() + 0.3
                 while time.monotonic() < end and self._readline(min(quiet, end)) is not None:
                     quiet = time.monotonic() + 0.3
@@ -116,31 +182,21 @@ class ConnectionMixin:
     def _handshake(self, number: int = 0) -> None:
         """``M110 N<number>``: the next line the firmware expects is ``number + 1``."""
         data = frame(number, f"M110 N{number}")
-        for attempt in range(1, self.config.handshake_attempts + 1):
-            self.transcript.write("Send", data.decode().strip())
-            self._write(data)
-            deadline = time.monotonic() + self.config.handshake_timeout
-            refused = False
-            for reply in self._replies(deadline):
-                if reply.kind in ("error", "resend"):
-                    # The M110 itself was refused (damaged on the wire): the ok that
-                    # follows a Resend is not the handshake's.
-                    refused = True
-                    continue
-                if reply.kind == "ok":
-                    # Let a late duplicate reply of an earlier attempt arrive and drop it.
-                    end = time.monotonic() + 1.0
-                    quiet = time.monotonic() + 0.05
-                    while time.monotonic() < end and self._readline(min(quiet, end)) is not None:
-                        quiet = time.monotonic() + 0.05
-                    if refused and reply.number != number:
-                        break
+        # on its own (a new stream, a reconnection) the handshake is a connection too
+        with self._connecting() if self._connect_deadline is None else contextlib.nullcontext():
+            for attempt in range(1, self.config.handshake_attempts + 1):
+                self._check_connect_deadline(f"waiting for the reply to 'M110 N{number}'")
+                if self._handshake_attempt(data, number):
                     return
-                if reply.kind == "start":
-                    self._banner_seen = True
-                    break  # it reset on the way: ask again
-            self.transcript.write("Note", f"{'M110 refused' if refused else 'no reply to M110'} "
-                                          f"(attempt {attempt})")
+                self.transcript.write("Note", f"no ok to M110 (attempt {attempt})")
+            self._check_connect_deadline(f"waiting for the reply to 'M110 N{number}'")
+            heard = self._heard
+        if heard.lines:
+            raise PrinterError(
+                f"the printer on {self.port_name} talked but never acknowledged 'M110 "
+                f"N{number}' ({self.config.handshake_attempts} attempts of "
+                f"{self.config.handshake_timeout:g} s{heard.summary()}); nothing of the "
+                f"file was sent. {_HINT}{self.config.baud}).")
         raise PrinterError(
             f"the printer on {self.port_name} did not answer (no reply to 'M110 N{number}' "
             f"after {self.config.handshake_attempts} attempts of "
@@ -148,9 +204,33 @@ class ConnectionMixin:
             f"is switched on, that the baud rate ({self.config.baud}) matches its firmware, "
             f"and that no other program holds the port.")
 
+    def _handshake_attempt(self, data: bytes, number: int) -> bool:
+        """Send the M110 once and wait for its ok; True when it came."""
+        self.transcript.write("Send", data.decode().strip())
+        self._write(data)
+        refused = False
+        for reply in self._replies(time.monotonic() + self.config.handshake_timeout):
+            if reply.kind in ("error", "resend"):
+                # The M110 itself was refused (damaged on the wire): the ok that
+                # follows a Resend is not the handshake's.
+                refused = True
+                continue
+            if reply.kind == "ok":
+                # Let a late duplicate reply of an earlier attempt arrive and drop it.
+                end = self._until(time.monotonic() + 1.0)
+                quiet = time.monotonic() + 0.05
+                while time.monotonic() < end and self._readline(min(quiet, end)) is not None:
+                    quiet = time.monotonic() + 0.05
+                return not (refused and reply.number != number)
+            if reply.kind == "start":
+                self._banner_seen = True
+                return False  # it reset on the way: ask again
+        return False
+
     def _query(self, command: str, wanted: Callable[[Reply], bool]) -> list[str]:
         """Send an unnumbered query, collect the wanted reply lines up to its ``ok``."""
         for _attempt in range(self.config.handshake_attempts):
+            self._check_connect_deadline(f"waiting for the reply to '{command}'")
             self.transcript.write("Send", command)
             self._write(command.encode() + b"\n")
             got: list[str] = []

@@ -14,19 +14,28 @@ that a print can be resumed after a lost connection.
 
 from __future__ import annotations
 
+import io
+import itertools
 import math
+import os
 import re
-from collections.abc import Iterable
+import stat
+from array import array
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any, BinaryIO, overload
 
 from machine_io.protocol import EXTRA_AXES, command_code
 from machine_io.session import StreamReport
-from printability.errors import InputError, PrintabilityOSError
+from printability.errors import InputError, PrintabilityOSError, ResourceError, excerpt
 
 __all__ = [
     "MachineState",
+    "PackedNumbers",
+    "PackedTexts",
     "Program",
+    "check_gcode_file",
     "check_line_lengths",
     "executed_as_streamed",
     "load_program",
@@ -37,10 +46,131 @@ __all__ = [
 
 _FRAMED = re.compile(r"^[Nn]\d+\s*(.*?)\s*(?:\*\d+)?$")
 _WORD = re.compile(r"([A-Za-z])\s*([+-]?(?:\d+\.?\d*|\.\d+))")
+_CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")
 # Marlin's MAX_CMD_SIZE: longer lines are cut by the firmware.
 DEFAULT_MAX_LINE = 96
 _HEATING_WAITS = {"M109": "T", "M190": "B", "M191": "C"}
 _HEATING_SETS = {"M104": "T", "M140": "B", "M141": "C"}
+# A file is read in pieces of this size: the whole file is never in memory at once.
+_CHUNK = 1 << 20
+# Bytes a program keeps per command besides its text: end offset, file line, seconds.
+BYTES_PER_COMMAND = 24
+# Skipped lines listed in Program.skipped (a file of nothing but M110 would list millions).
+_MAX_SKIPPED = 1000
+
+
+class _Packed:
+    """Shared behaviour of the packed sequences: equality with any sequence, short repr."""
+
+    def __len__(self) -> int:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def __iter__(self) -> Iterator[Any]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, (_Packed, tuple, list)):
+            return len(self) == len(other) and all(
+                a == b for a, b in zip(self, other, strict=True))
+        return NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(tuple(self))
+
+    def __repr__(self) -> str:
+        head = ", ".join(repr(v) for v in itertools.islice(self, 3))
+        more = ", …" if len(self) > 3 else ""
+        return f"{type(self).__name__}([{head}{more}], {len(self)} items)"
+
+
+class PackedTexts(_Packed, Sequence[str]):
+    """Command texts stored as one UTF-8 buffer and end offsets.
+
+    A tuple of millions of ``str`` costs about 70 bytes per command on top of
+    the text; this costs 8. Items are decoded when asked for; slices give tuples.
+
+    Parameters
+    ----------
+    blob
+        The texts, one after the other.
+    ends
+        End offset of each text in ``blob`` (the start is the previous end).
+    """
+
+    __slots__ = ("_blob", "_ends")
+
+    def __init__(self, blob: bytes | bytearray, ends: array) -> None:
+        self._blob = blob  # kept as given: a copy of a bytearray would double it for a moment
+        self._ends = ends
+
+    def __len__(self) -> int:
+        return len(self._ends)
+
+    def _span(self, i: int) -> tuple[int, int]:
+        return (self._ends[i - 1] if i else 0), self._ends[i]
+
+    @overload
+    def __getitem__(self, index: int) -> str: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> tuple[str, ...]: ...
+
+    def __getitem__(self, index: int | slice) -> str | tuple[str, ...]:
+        if isinstance(index, slice):
+            return tuple(self[i] for i in range(*index.indices(len(self))))
+        n = len(self._ends)
+        if index < 0:
+            index += n
+        if not 0 <= index < n:
+            raise IndexError("command index out of range")
+        a, b = self._span(index)
+        return self._blob[a:b].decode("utf-8")
+
+    def __iter__(self) -> Iterator[str]:
+        blob = self._blob
+        a = 0
+        for b in self._ends:
+            yield blob[a:b].decode("utf-8")
+            a = b
+
+    def sizes(self) -> Iterator[int]:
+        """Length of each text in bytes (UTF-8), without decoding."""
+        a = 0
+        for b in self._ends:
+            yield b - a
+            a = b
+
+
+class PackedNumbers(_Packed, Sequence[Any]):
+    """Numbers in an :class:`array.array` (8 bytes each, not a Python object each).
+
+    Parameters
+    ----------
+    values
+        The numbers (``array("q")`` for line numbers, ``array("d")`` for seconds).
+    """
+
+    __slots__ = ("_values",)
+
+    def __init__(self, values: array) -> None:
+        self._values = values
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    @overload
+    def __getitem__(self, index: int) -> Any: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> tuple[Any, ...]: ...
+
+    def __getitem__(self, index: int | slice) -> Any:
+        if isinstance(index, slice):
+            return tuple(self._values[index])
+        return self._values[index]
+
+    def __iter__(self) -> Iterator[Any]:
+        return iter(self._values)
 
 
 @dataclass(frozen=True)
@@ -52,7 +182,8 @@ class Program:
     source
         Where the commands came from (path or description).
     commands
-        The commands to send, in order: no comments, no blank lines, trimmed.
+        The commands to send, in order: no comments, no blank lines, trimmed
+        (a :class:`PackedTexts` when read from a file: a few bytes per command).
     source_lines
         1-based line of the file for each command.
     seconds
@@ -62,13 +193,13 @@ class Program:
         Axis letters used by moves (``G0``–``G3``, ``G92``), e.g. ``{"X", "Y", "Z", "E", "C"}``.
     skipped
         Lines of the file that hold something but are not sent, with why
-        (``M110``...), as ``(line, reason)``.
+        (``M110``...), as ``(line, reason)``; the first thousand.
     """
 
     source: str
-    commands: tuple[str, ...]
-    source_lines: tuple[int, ...]
-    seconds: tuple[float, ...]
+    commands: Sequence[str]
+    source_lines: Sequence[int]
+    seconds: Sequence[float]
     axes: frozenset[str]
     skipped: tuple[tuple[int, str], ...] = ()
 
@@ -78,7 +209,7 @@ class Program:
     @property
     def total_seconds(self) -> float:
         """Estimated motion time of the whole file, s."""
-        return self.seconds[-1] if self.seconds else 0.0
+        return self.seconds[-1] if len(self.seconds) else 0.0
 
     @property
     def rotary_axes(self) -> frozenset[str]:
@@ -89,8 +220,11 @@ class Program:
         """``"command 12 (file line 40: G1 X1)"`` for a 0-based command index."""
         if not 0 <= index < len(self.commands):
             return f"command {index + 1} (past the end)"
+        text = self.commands[index]
+        if len(text) > 60:
+            text = text[:60] + "…"
         return (f"command {index + 1} of {len(self.commands)} "
-                f"({self.source} line {self.source_lines[index]}: {self.commands[index]})")
+                f"({self.source} line {self.source_lines[index]}: {text})")
 
 
 def _decode(raw: bytes, source: str, lineno: int) -> str:
@@ -102,6 +236,82 @@ def _decode(raw: bytes, source: str, lineno: int) -> str:
             f"{exc.start + 1}); nothing was sent. A printer receives text: re-export the file "
             f"from the slicer or remove the stray bytes."
         ) from None
+
+
+class _Builder:
+    """Turns the lines of a G-code file into a :class:`Program`, one line at a time, keeping
+    only the packed commands (see :func:`parse_program` for the rules)."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+        self.blob = bytearray()
+        self.ends = array("q")
+        self.lines = array("q")
+        self.seconds = array("d")
+        self.skipped: list[tuple[int, str]] = []
+        self.estimate = _Estimator()
+
+    def add(self, lineno: int, raw: bytes) -> None:
+        cut = raw.find(b";")
+        body = (raw if cut < 0 else raw[:cut]).strip()
+        if not body:
+            return
+        text = _decode(body, self.source, lineno)
+        if text[0] in "Nn":
+            m = _FRAMED.match(text)
+            if m and m.group(1):
+                text = m.group(1)
+                body = text.encode()
+            elif m:
+                return
+        if "*" in text:
+            raise InputError(
+                f"{self.source}: line {lineno} contains '*' at column {text.index('*') + 1}, "
+                f"which the Marlin protocol reserves for the checksum ({excerpt(text)}); "
+                f"nothing was sent.")
+        bad = _CONTROL.search(text)
+        if bad:
+            raise InputError(
+                f"{self.source}: line {lineno} contains a control character "
+                f"({excerpt(bad.group())} at column {bad.start() + 1}: "
+                f"{excerpt(text[max(0, bad.start() - 20):])}); nothing was sent.")
+        code = command_code(text)
+        if code == "M110":
+            if len(self.skipped) < _MAX_SKIPPED:
+                self.skipped.append((lineno, "M110 not sent: the host numbers the lines itself"))
+            return
+        self.blob += body
+        self.ends.append(len(self.blob))
+        self.lines.append(lineno)
+        self.seconds.append(self.estimate.add(text, code))
+
+    def program(self) -> Program:
+        if not self.ends:
+            raise InputError(f"{self.source}: no G-code command to send (only comments or "
+                             "blank lines)")
+        return Program(self.source, PackedTexts(self.blob, self.ends), PackedNumbers(self.lines),
+                       PackedNumbers(self.seconds), frozenset(self.estimate.axes),
+                       tuple(self.skipped))
+
+
+def _lines(fh: BinaryIO) -> Iterator[bytes]:
+    """The lines of a file (ended by ``\\n``, ``\\r\\n`` or ``\\r``, as
+    :meth:`bytes.splitlines`), read a megabyte at a time."""
+    carry = bytearray()
+    while chunk := fh.read(_CHUNK):
+        # complete lines end at the last terminator; a final \r may be half of a \r\n
+        cut = max(chunk.rfind(b"\n"), chunk.rfind(b"\r", 0, len(chunk) - 1))
+        if cut < 0:
+            carry += chunk
+            continue
+        if carry:
+            carry += chunk[:cut + 1]
+            yield from bytes(carry).splitlines()
+        else:
+            yield from chunk[:cut + 1].splitlines()
+        carry = bytearray(chunk[cut + 1:])
+    if carry:
+        yield from bytes(carry).splitlines()
 
 
 def parse_program(data: bytes, *, source: str = "<data>",
@@ -128,42 +338,14 @@ def parse_program(data: bytes, *, source: str = "<data>",
         found before anything is sent, naming the line. Bytes that are not
         UTF-8 inside a comment are dropped with the comment.
     """
-    commands: list[str] = []
-    lines: list[int] = []
-    skipped: list[tuple[int, str]] = []
-    # Number of digits the largest line number will have: frame length check.
-    for lineno, raw in enumerate(data.splitlines(), start=1):
-        cut = raw.find(b";")
-        body = raw if cut < 0 else raw[:cut]
-        body = body.strip()
-        if not body:
-            continue
-        text = _decode(body, source, lineno)
-        if text[0] in "Nn":
-            m = _FRAMED.match(text)
-            if m and m.group(1):
-                text = m.group(1)
-            elif m:
-                continue
-        if "*" in text:
-            raise InputError(
-                f"{source}: line {lineno} contains '*', which the Marlin protocol reserves for "
-                f"the checksum ({text!r}); nothing was sent.")
-        if any(ord(c) < 32 and c != "\t" for c in text) or "\x7f" in text:
-            raise InputError(
-                f"{source}: line {lineno} contains a control character ({text!r}); nothing was "
-                f"sent.")
-        code = command_code(text)
-        if code == "M110":
-            skipped.append((lineno, "M110 not sent: the host numbers the lines itself"))
-            continue
-        commands.append(text)
-        lines.append(lineno)
-    if not commands:
-        raise InputError(f"{source}: no G-code command to send (only comments or blank lines)")
-    seconds, axes = _estimate(commands)
-    program = Program(source, tuple(commands), tuple(lines), tuple(seconds), frozenset(axes),
-                      tuple(skipped))
+    return _parse(io.BytesIO(data), source, max_line_length)
+
+
+def _parse(fh: BinaryIO, source: str, max_line_length: int | None) -> Program:
+    builder = _Builder(source)
+    for lineno, raw in enumerate(_lines(fh), start=1):
+        builder.add(lineno, raw)
+    program = builder.program()
     if max_line_length is not None:
         check_line_lengths(program, max_line_length)
     return program
@@ -173,34 +355,112 @@ def check_line_lengths(program: Program, max_line_length: int) -> None:
     """Refuse the program when a command, once numbered and checksummed, is longer than
     the firmware's line buffer (``max_line_length`` bytes): it would be cut there."""
     width = len(f"N{len(program.commands) + 10} *255\n")
-    for text, lineno in zip(program.commands, program.source_lines, strict=True):
-        size = len(text.encode()) + width
-        if size > max_line_length:
+    commands = program.commands
+    sizes = (commands.sizes() if isinstance(commands, PackedTexts)
+             else (len(text.encode()) for text in commands))
+    for i, size in enumerate(sizes):
+        if size + width > max_line_length:
             raise InputError(
-                f"{program.source}: line {lineno} is {size} bytes once numbered and "
-                f"checksummed, more than the firmware's {max_line_length}-byte line buffer "
-                f"({text[:40]!r}…); nothing was sent.")
+                f"{program.source}: line {program.source_lines[i]} is {size + width} bytes "
+                f"once numbered and checksummed, more than the firmware's {max_line_length}-byte "
+                f"line buffer ({excerpt(commands[i], 40)}); nothing was sent.")
 
 
-def load_program(path: str | Path, *,
-                 max_line_length: int | None = DEFAULT_MAX_LINE) -> Program:
-    """Read a G-code file into a :class:`Program` (see :func:`parse_program`).
+def program_memory(path: str | Path) -> int:
+    """Bytes :func:`load_program` will keep for ``path``, at most (its text plus
+    :data:`BYTES_PER_COMMAND` per line), from one quick pass that counts its lines.
 
     Raises
     ------
     PrintabilityOSError
         The file cannot be read.
+    """
+    path = Path(path)
+    size = lines = 0
+    try:
+        with path.open("rb") as fh:
+            while chunk := fh.read(_CHUNK):
+                size += len(chunk)
+                lines += chunk.count(b"\n") + chunk.count(b"\r")
+    except OSError as exc:
+        raise PrintabilityOSError(f"{path}: cannot read the G-code file "
+                                  f"({exc.strerror or exc})") from None
+    return size + BYTES_PER_COMMAND * (lines + 1)
+
+
+def check_gcode_file(path: str | Path) -> None:
+    """Refuse a G-code path that is missing or is not a regular file (``/dev/zero`` would
+    be read for ever, a pipe consumed), before anything is read.
+
+    Raises
+    ------
+    PrintabilityOSError
+        Naming the file and what it is.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        raise PrintabilityOSError(f"{path}: cannot read the G-code file "
+                                  f"({exc.strerror or exc}); nothing was sent.") from None
+    if not stat.S_ISREG(mode):
+        kind = "a folder" if stat.S_ISDIR(mode) else "a device, a pipe or a socket"
+        raise PrintabilityOSError(f"{path}: cannot read the G-code file: it is {kind}, not a "
+                                  f"regular file; nothing was sent.")
+
+
+def load_program(path: str | Path, *,
+                 max_line_length: int | None = DEFAULT_MAX_LINE,
+                 max_memory: int | None = None) -> Program:
+    """Read a G-code file into a :class:`Program` (see :func:`parse_program`).
+
+    The file is read a megabyte at a time and only the commands are kept,
+    packed (:class:`PackedTexts`): about the size of the file's commands plus
+    :data:`BYTES_PER_COMMAND` bytes per command.
+
+    Parameters
+    ----------
+    path
+        The G-code file: a regular file (a device such as ``/dev/zero``, a pipe
+        or a folder is refused before anything is read).
+    max_line_length
+        See :func:`parse_program`.
+    max_memory
+        Most bytes the program may take (:func:`program_memory` estimates it
+        before the file is parsed); default
+        :func:`printability.settings.default_memory_limit`.
+
+    Raises
+    ------
+    PrintabilityOSError
+        The file cannot be read or is not a regular file.
+    ResourceError
+        The program would take more than ``max_memory``.
     InputError
         See :func:`parse_program`.
     """
     path = Path(path)
+    check_gcode_file(path)
+    if max_memory is None:
+        from printability.settings import default_memory_limit
+
+        max_memory = default_memory_limit()
+    need = program_memory(path)
+    if need > max_memory:
+        raise ResourceError(
+            f"{path}: reading this G-code file for streaming would take about "
+            f"{need / 2**20:,.0f} MiB, more than the {max_memory / 2**20:,.0f} MiB allowed "
+            f"(half the memory, at most 16 GiB); nothing was sent. Split the file (at a layer "
+            f"change) and stream the parts with --resume-from, or use a host with more memory.")
     try:
-        data = path.read_bytes()
+        with path.open("rb") as fh:
+            if b"\x00" in fh.read(65536):
+                raise InputError(f"{path}: this is a binary file, not G-code text; nothing was "
+                                 f"sent.")
+            fh.seek(0)
+            return _parse(fh, str(path), max_line_length)
     except OSError as exc:
-        raise PrintabilityOSError(f"{path}: cannot read the G-code file ({exc.strerror})") from None
-    if b"\x00" in data[:65536]:
-        raise InputError(f"{path}: this is a binary file, not G-code text; nothing was sent.")
-    return parse_program(data, source=str(path), max_line_length=max_line_length)
+        raise PrintabilityOSError(f"{path}: cannot read the G-code file "
+                                  f"({exc.strerror or exc})") from None
 
 
 def _words(text: str) -> dict[str, float]:
@@ -300,7 +560,7 @@ class MachineState:
 def state_at(program: Program, index: int) -> MachineState:
     """The modal state after the first ``index`` commands of ``program`` have run."""
     state = MachineState()
-    for command in program.commands[:index]:
+    for command in itertools.islice(program.commands, index):
         state = state.apply(command)
     return state
 
@@ -367,65 +627,76 @@ def restore_commands(state: MachineState, *, home_xy: bool, lift: float = 2.0,
     return tuple(out)
 
 
-def _estimate(commands: Iterable[str]) -> tuple[list[float], set[str]]:
-    """Cumulative motion time (s) after each command, and the axis letters moves use.
+class _Estimator:
+    """Cumulative motion time (s) after each command, and the axis letters moves use,
+    one command at a time.
 
     Each move takes its path length over its feed rate (no acceleration: a
     lower bound that the host rescales by the observed pace); rotary-only
     moves count their angle as length, like a firmware that treats all axes
     as Euclidean would.
     """
-    pos: dict[str, float] = {"E": 0.0}  # X, Y, Z unknown until the first move names them
-    absolute = e_abs = True
-    feed = 1500.0  # mm/min until the file sets one
-    inch = 1.0
-    total = 0.0
-    out: list[float] = []
-    axes: set[str] = set()
-    for command in commands:
-        code = command_code(command)
+
+    def __init__(self) -> None:
+        self.pos: dict[str, float] = {"E": 0.0}  # X, Y, Z unknown until a move names them
+        self.absolute = self.e_abs = True
+        self.feed = 1500.0  # mm/min until the file sets one
+        self.inch = 1.0
+        self.total = 0.0
+        self.axes: set[str] = set()
+
+    def add(self, command: str, code: str) -> float:
+        """Account for ``command`` (whose :func:`command_code` is ``code``); returns the
+        total so far, s."""
+        pos, inch = self.pos, self.inch
         if code in ("G0", "G1", "G2", "G3"):
             words = _words(command)
             if "F" in words and words["F"] > 0:
-                feed = words["F"] * inch
+                self.feed = words["F"] * inch
             dist2 = de = 0.0
             for letter, value in words.items():
                 if letter in "FIJKRPS":
                     continue
-                axes.add(letter)
+                self.axes.add(letter)
                 value *= inch
                 if letter == "E":
-                    new = value if e_abs else pos.get("E", 0.0) + value
+                    new = value if self.e_abs else pos.get("E", 0.0) + value
                     de = new - pos.get("E", new)
                 else:
-                    new = value if absolute else pos.get(letter, 0.0) + value
+                    new = value if self.absolute else pos.get(letter, 0.0) + value
                     d = new - pos.get(letter, new)
                     dist2 += d * d
                 pos[letter] = new
             # An E-only move (retraction) takes its filament length over F.
-            total += (math.sqrt(dist2) or abs(de)) / feed * 60.0
-        else:
-            if code == "G92":
-                for letter, value in _words(command).items():
-                    axes.add(letter)
-                    pos[letter] = value * inch
-            elif code == "G90":
-                absolute = e_abs = True
-            elif code == "G91":
-                absolute = e_abs = False
-            elif code == "M82":
-                e_abs = True
-            elif code == "M83":
-                e_abs = False
-            elif code == "G20":
-                inch = 25.4
-            elif code == "G21":
-                inch = 1.0
-            elif code == "G4":
-                words = _words(command)
-                total += words.get("S", 0.0) + words.get("P", 0.0) / 1000.0
-        out.append(total)
-    return out, axes
+            self.total += (math.sqrt(dist2) or abs(de)) / self.feed * 60.0
+        elif code == "G92":
+            for letter, value in _words(command).items():
+                self.axes.add(letter)
+                pos[letter] = value * inch
+        elif code == "G90":
+            self.absolute = self.e_abs = True
+        elif code == "G91":
+            self.absolute = self.e_abs = False
+        elif code == "M82":
+            self.e_abs = True
+        elif code == "M83":
+            self.e_abs = False
+        elif code == "G20":
+            self.inch = 25.4
+        elif code == "G21":
+            self.inch = 1.0
+        elif code == "G4":
+            words = _words(command)
+            self.total += words.get("S", 0.0) + words.get("P", 0.0) / 1000.0
+        return self.total
+
+
+def _estimate(commands: Iterable[str]) -> tuple[list[float], set[str]]:
+    """Cumulative motion time (s) after each command, and the axis letters moves use
+    (see :class:`_Estimator`)."""
+    est = _Estimator()
+    out = [est.add(command, command_code(command)) for command in commands]
+    return out, est.axes
 
 
 def executed_as_streamed(executed: list[str], commands: list[str],

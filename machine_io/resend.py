@@ -15,6 +15,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from machine_io.protocol import (
     LONG_COMMANDS,
@@ -24,6 +25,7 @@ from machine_io.protocol import (
     is_protocol_error,
     parse_reply,
 )
+from printability.errors import excerpt
 
 __all__ = ["ResendMixin"]
 
@@ -55,13 +57,56 @@ class _Stop(Exception):
     """Internal: unwind the streaming loop (the reason is in ``Host._stop_reason``)."""
 
 
+# Lines kept below the last acknowledged one: a Resend asks for a line after the last the
+# firmware accepted (at or after the acknowledged ones), so older lines are never needed again.
+_KEEP_BEHIND = 4096
+
+
+class _History:
+    """A list indexed by line number that forgets lines long acknowledged.
+
+    The host keeps every line it numbered (frame, text, owner) for retransmission; kept for
+    a whole print, a 200 MB file's millions of lines would take gigabytes by the end of it.
+    Supports ``len`` (the next line number), indexing, ``append`` and ``del h[k:]``.
+    """
+
+    __slots__ = ("_base", "_items")
+
+    def __init__(self, first: object) -> None:
+        self._base = 0  # line number of _items[0]
+        self._items = [first]
+
+    def __len__(self) -> int:
+        return self._base + len(self._items)
+
+    def __getitem__(self, number: int) -> Any:
+        if number < self._base:
+            raise IndexError(f"line {number} was forgotten (kept from {self._base})")
+        return self._items[number - self._base]
+
+    def append(self, item: object) -> None:
+        self._items.append(item)
+
+    def __delitem__(self, cut: slice) -> None:
+        if cut.stop is not None or cut.step is not None or (cut.start or 0) < self._base:
+            raise IndexError("only a tail of kept lines can be deleted")
+        del self._items[cut.start - self._base:]
+
+    def forget_before(self, number: int) -> None:
+        """Drop the lines numbered below ``number``."""
+        if number > self._base:
+            del self._items[:number - self._base]
+            self._base = number
+
+
 class ResendMixin:
     """The line bookkeeping and reply handling of :class:`machine_io.host.Host`."""
 
     def _reset_counters(self) -> None:
-        self._frames: list[bytes] = [b""]  # index = line number; 0 is the handshake
-        self._texts: list[str] = [""]
-        self._owner: list[int] = [-1]
+        # index = line number; 0 is the handshake
+        self._frames: _History = _History(b"")
+        self._texts: _History = _History("")
+        self._owner: _History = _History(-1)
         self._next = 1
         self._max_sent = 0
         self._acked = 0
@@ -132,6 +177,10 @@ class ResendMixin:
                 and self._out_bytes + size <= self.config.rx_buffer)
 
     def _append(self, text: str, owner: int) -> None:
+        # forget in batches (a list's head is cheap to cut once, not once per line)
+        if self._acked - self._frames._base > 2 * _KEEP_BEHIND:
+            for history in (self._frames, self._texts, self._owner):
+                history.forget_before(self._acked - _KEEP_BEHIND)
         n = len(self._frames)
         self._frames.append(frame(n, text))
         self._texts.append(text)
@@ -251,11 +300,12 @@ class ResendMixin:
         if number < 1 or number > self._max_sent + 1:
             self._note(f"ignored a resend request for line {number} (never sent)")
             return
-        if number <= self._acked_reliable:
-            # The firmware acknowledged that line: either the request is garbled or the
-            # firmware lost its count (a restart we did not see). Retransmitting would run
-            # lines twice in the second case, so do nothing: a firmware that kept its count
-            # asks again for the right line at the next transmission.
+        if number <= self._acked_reliable or number < self._frames._base:
+            # The firmware acknowledged that line (long ago, if it was forgotten): either the
+            # request is garbled or the firmware lost its count (a restart we did not see).
+            # Retransmitting would run lines twice in the second case, so do nothing: a
+            # firmware that kept its count asks again for the right line at the next
+            # transmission.
             self._suspicious += 1
             if self._suspicious > self.config.max_resends:
                 self._stop_reason = (
@@ -355,16 +405,18 @@ class ResendMixin:
             return  # a Resend follows
         low = text.lower()
         fatal = "halted" in low or "kill" in low or "stopped" in low or text.startswith("!!")
-        self._note(f"firmware error: {text}")
+        # a firmware line can be anything up to the reader's 64 KiB: messages quote its start
+        shown = text if len(text) <= 200 else text[:200] + "…"
+        self._note(f"firmware error: {shown}")
         if fatal:
-            self._stop_reason = f"the printer halted ({text}); it needs a reset"
+            self._stop_reason = f"the printer halted ({shown}); it needs a reset"
             self._fatal = self._failed = True
             raise _Stop
         policy = self.config.error_policy
         if policy == "ignore":
             return
         self._failed = True
-        self._stop_reason = f"firmware error {text!r} (error policy '{policy}')"
+        self._stop_reason = f"firmware error {excerpt(text, 200)} (error policy '{policy}')"
         if policy == "stop":
             self._emergency.set()
         self._cancel.set()

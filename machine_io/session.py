@@ -41,6 +41,10 @@ class HostConfig:
         that does not reset on connect sends none; the handshake follows anyway).
     handshake_timeout, handshake_attempts
         Per-attempt wait for the ``M110`` reply, s, and the number of attempts.
+    connect_timeout
+        Overall limit of a connection (banner, handshake, capability queries; the
+        handshake of a reconnection), s: a board that keeps talking without ever
+        answering (a reset loop, noise at a wrong baud rate) is given up on then.
     reply_timeout
         Silence after which an unanswered line is retransmitted, s. Any reply
         to the lines in flight (``ok``, ``busy:``, ``Resend``, errors, a heating
@@ -100,6 +104,7 @@ class HostConfig:
     banner_timeout: float = 3.0
     handshake_timeout: float = 2.0
     handshake_attempts: int = 3
+    connect_timeout: float = 60.0
     reply_timeout: float = 5.0
     long_timeout: float = 1800.0
     keepalive_timeout: float = 10.0
@@ -123,7 +128,7 @@ class HostConfig:
         object.__setattr__(self, "error_policy", EXTRUDER_ERROR_POLICIES.check(self.error_policy))
         for name in ("banner_timeout", "handshake_timeout", "reply_timeout", "long_timeout",
                      "keepalive_timeout", "resend_ok_timeout", "confirm_timeout",
-                     "reconnect_timeout"):
+                     "reconnect_timeout", "connect_timeout"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v >= 0):
                 raise InputError(f"{name} must be a non-negative number of seconds; got {v!r}")

@@ -26,10 +26,13 @@ from typing import Any
 
 import serial
 
-from printability.errors import PrintabilityOSError
+from printability.errors import PrintabilityOSError, excerpt
 
 __all__ = ["URL_HANDLER_PACKAGES", "LineReader", "open_port"]
 
+# Longest line kept whole, bytes: a firmware line is far shorter; noise without a line end
+# (a wrong baud rate) is handed out in pieces of this size instead of piling up.
+MAX_LINE = 65536
 # Packages holding pyserial URL handlers (module ``<package>.protocol_<scheme>``).
 URL_HANDLER_PACKAGES: tuple[str, ...] = ("simulators.urlhandler",)
 
@@ -65,13 +68,13 @@ def open_port(port: str, *, baud: int = 250000, timeout: float = 0.05) -> Any:
                                          write_timeout=10.0)
         except (serial.SerialException, ValueError, OSError) as exc:
             raise PrintabilityOSError(
-                f"cannot open the printer port {port!r}: {exc}. Check the URL (pyserial URL "
-                f"schemes: socket://HOST:PORT, rfc2217://, loop://, and printsim:// for the "
-                f"built-in simulator).") from None
+                f"cannot open the printer port {excerpt(port)}: {str(exc)[:200]}. Check the URL "
+                f"(pyserial URL schemes: socket://HOST:PORT, rfc2217://, loop://, and "
+                f"printsim:// for the built-in simulator).") from None
     if not os.path.exists(port):
         raise PrintabilityOSError(
-            f"the printer port {port!r} does not exist: is the printer plugged in and switched "
-            f"on? Serial ports are usually /dev/ttyUSB0 or /dev/ttyACM0 on Linux, COM3 on "
+            f"the printer port {excerpt(port)} does not exist: is the printer plugged in and "
+            f"switched on? Serial ports are usually /dev/ttyUSB0 or /dev/ttyACM0 on Linux, COM3 on "
             f"Windows; a simulator prints its port on the first line it writes.")
     try:
         return serial.Serial(port, baudrate=baud, timeout=timeout, write_timeout=10.0)
@@ -81,7 +84,8 @@ def open_port(port: str, *, baud: int = 250000, timeout: float = 0.05) -> Any:
             hint = " Add your user to the group that owns the port (often 'dialout')."
         elif "busy" in str(exc).lower():
             hint = " Another program (a host, a slicer, ModemManager) holds it."
-        raise PrintabilityOSError(f"cannot open the printer port {port!r}: {exc}.{hint}") from None
+        raise PrintabilityOSError(f"cannot open the printer port {excerpt(port)}: "
+                                  f"{str(exc)[:200]}.{hint}") from None
 
 
 class LineReader:
@@ -151,8 +155,11 @@ class LineReader:
                     parts = self._buffer.replace(b"\r", b"\n").split(b"\n")
                     self._buffer = bytearray(parts.pop())
                     self._lines.extend(p for p in parts if p.strip())
-                    if self._lines:
-                        continue
+                if len(self._buffer) > MAX_LINE:
+                    self._lines.append(bytes(self._buffer))
+                    self._buffer.clear()
+                if self._lines:
+                    continue
             if time.monotonic() >= deadline:
                 return None
 

@@ -10,6 +10,7 @@ exit code 1; anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 __all__ = [
+    "EXCERPT_LENGTH",
     "FileFormatError",
     "InputError",
     "NozzleTooLargeError",
@@ -19,6 +20,7 @@ __all__ = [
     "ResourceError",
     "StoppedError",
     "UnknownOptionError",
+    "excerpt",
 ]
 
 
@@ -90,3 +92,47 @@ class PrinterError(PrintabilityError, RuntimeError):
 class StoppedError(PrintabilityError, InterruptedError):
     """The process was asked to stop (SIGTERM, SIGHUP, SIGQUIT) while it worked; what it was
     writing is left as it was."""
+
+
+
+#: Characters of user input an error message quotes at most (see :func:`excerpt`).
+EXCERPT_LENGTH = 60
+
+
+def excerpt(value: str | bytes | bytearray, limit: int = EXCERPT_LENGTH) -> str:
+    r"""A short quoted piece of user input for an error message.
+
+    At most ``limit`` characters (bytes for ``bytes``) of ``value`` are shown
+    between quotes, then ``…`` when there was more. What a terminal would not
+    show as itself is escaped: control and format characters as ``\x01``,
+    ``\t``, ``\u202e``; bytes that are not UTF-8 as ``\xff``. The cost does not
+    depend on the length of ``value``: a 10 MB line quoted whole makes a 10 MB
+    message (which the terminal wrapping then takes minutes over), and quoting
+    a whole line of the wrong file repeats its contents.
+
+    Parameters
+    ----------
+    value
+        The text or bytes to quote.
+    limit
+        Most characters (bytes) of ``value`` shown.
+
+    Returns
+    -------
+    str
+        ``'G1 X1 Y2'``, or ``'EXCLUDE_OBJECT_DEFINE NAME=a POLYGON=[[0,0],'…`` when cut.
+
+    Examples
+    --------
+    >>> print(excerpt("G1 X\x01"))
+    'G1 X\x01'
+    >>> print(excerpt("x" * 100, 5))
+    'xxxxx'…
+    >>> print(excerpt(b"M117 \xff"))
+    'M117 \xff'
+    """
+    head = value[:limit]
+    if isinstance(head, (bytes, bytearray)):
+        head = bytes(head).decode("utf-8", "backslashreplace")
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in head)
+    return f"'{shown}'" + ("…" if len(value) > limit else "")

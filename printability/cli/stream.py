@@ -10,6 +10,7 @@ then the cancel sequence leaves the printer safe); a second one sends M112.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import signal
 from collections.abc import Callable, Iterator
@@ -24,6 +25,8 @@ from printability.options import EXTRUDER_ERROR_POLICIES, STREAM_MODES
 __all__ = ["register", "stream_command"]
 
 _SIGNAL_WORDS = {"SIGINT": "Ctrl-C", "SIGHUP": "SIGHUP (the terminal closed)"}
+# Files above this size get a note while they are read (a few seconds per 20 MB).
+_BIG_FILE = 20_000_000
 
 
 @contextlib.contextmanager
@@ -89,27 +92,23 @@ def stream_command(
     progress: bool = typer.Option(True, "--progress/--no-progress",
                                   help="Show progress on stderr: a live bar in a terminal, a "
                                        "line at each quarter of the file otherwise."),
+    connect_timeout: float = typer.Option(60.0, "--connect-timeout", min=0.1,
+                                          help="Give up connecting (start banner, line-number "
+                                               "handshake, firmware queries) after this many "
+                                               "seconds, however much the printer talks."),
 ) -> None:
     """Stream GCODE to the printer on PORT: line numbers and checksums, resends, busy-aware
     timeouts, pause (SIGUSR1) / resume (SIGUSR2) / cancel (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT:
     heaters, fan and motors off)."""
     from machine_io import Host, HostConfig, Transcript, load_program
     from machine_io.display import stream_progress
+    from machine_io.program import check_gcode_file
     from printability.cli.common import write_json_atomic
     from printability.errors import InputError, PrinterError
 
     config = HostConfig(mode=mode, error_policy=error_policy, baud=baud, reply_timeout=timeout,
-                        check_axes=axis_check, home_on_restore=home)
-    # the line length is checked once the firmware is known (Klipper has no 96-byte limit)
-    program = load_program(gcode, max_line_length=None)
-    start = 0
-    if resume_from is not None:
-        later = [i for i, line in enumerate(program.source_lines) if line >= resume_from]
-        if not later:
-            raise InputError(f"--resume-from {resume_from}: {gcode} has no command at or after "
-                             f"line {resume_from} (its last command is on line "
-                             f"{program.source_lines[-1]})")
-        start = later[0]
+                        check_axes=axis_check, home_on_restore=home,
+                        connect_timeout=connect_timeout)
     display = None  # while streaming, events go above the progress bar
 
     def event(message: str) -> None:
@@ -118,8 +117,24 @@ def stream_command(
         else:
             typer.echo(f"printability: {message}", err=True)
 
+    check_gcode_file(gcode)  # before the port: /dev/zero would be read for ever
     with _stopped_before_streaming(port) as release_signals, \
             Host(port, config=config, transcript=Transcript(log), on_event=event) as host:
+        # the port first: a wrong --port is said at once, not after reading a big file
+        host.open()
+        # the line length is checked once the firmware is known (Klipper has no 96-byte limit)
+        size = gcode.stat().st_size
+        if size > _BIG_FILE:
+            event(f"reading {gcode} ({size / 1e6:.0f} MB)")
+        program = load_program(gcode, max_line_length=None)
+        start = 0
+        if resume_from is not None:
+            # source_lines ascend: the first command at or after the line
+            start = bisect.bisect_left(program.source_lines, resume_from)
+            if start >= len(program):
+                raise InputError(f"--resume-from {resume_from}: {gcode} has no command at or "
+                                 f"after line {resume_from} (its last command is on line "
+                                 f"{program.source_lines[-1]})")
         firmware = host.connect()
         typer.echo(f"printer: {firmware.name or 'unnamed firmware'}"
                    f" (ADVANCED_OK {'yes' if firmware.advanced_ok else 'no'}; axes "

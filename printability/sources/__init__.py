@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from printability.errors import FileFormatError, InputError, PrintabilityOSError
+from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
 from printability.layers import LayerStack
 from printability.options import SOURCE_FORMATS
 from printability.settings import DEFAULT_SETTINGS, Settings
@@ -104,9 +104,9 @@ def detect_format(path: str | Path) -> str:
     if fmt is None:
         known = ", ".join(sorted(EXTENSIONS))
         raise FileFormatError(
-            p, f"cannot tell what kind of file this is from its extension {p.suffix!r} or its "
-            f"first bytes; expected one of {known} (or pass format=, one of "
-            f"{', '.join(SOURCE_FORMATS.choices)})")
+            p, "cannot tell what kind of file this is from its extension "
+            f"{excerpt(p.suffix, 20)} or its first bytes; expected one of {known} (or pass "
+            f"format=, one of {', '.join(SOURCE_FORMATS.choices)})")
     return fmt
 
 

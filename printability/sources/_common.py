@@ -21,6 +21,7 @@ from printability.errors import (
     InputError,
     PrintabilityOSError,
     ResourceError,
+    excerpt,
 )
 from printability.geometry import as_region, polygons_of
 from printability.layers import Layer, LayerStack
@@ -61,9 +62,10 @@ def check_positive(name: str, value: float | None) -> float | None:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise InputError(f"{name} must be a positive number of mm; got {value!r}") from None
+        raise InputError(f"{name} must be a positive number of mm; got "
+                         f"{excerpt(str(value))}") from None
     if not (math.isfinite(v) and v > 0):
-        raise InputError(f"{name} must be a positive number of mm; got {value!r}")
+        raise InputError(f"{name} must be a positive number of mm; got {v:g}")
     return v
 
 

@@ -39,6 +39,17 @@ Ordinary drawings (one planar layer, z = 0, height 0)
       ``fit=MM`` finally scales the shape about the origin so the longest side
       of its bounding box is MM mm.
 
+Limits (checked before the work, a :class:`~printability.errors.ResourceError` naming the
+file and the element)
+    A drawing may expand to at most :data:`MAX_ELEMENTS` elements, every
+    ``<use>`` counting as a copy of what it refers to (nested ``<use>``
+    multiply: 11 levels of ten copies are 10¹¹ elements in 1.4 kB), nested at
+    most :data:`MAX_DEPTH` deep, holding at most :data:`MAX_SOURCE_POINTS`
+    points; a ``<use>`` may not refer to its own ancestor; and its curves may
+    flatten to at most :data:`MAX_VERTICES` points (a circle of radius 10¹²
+    flattened to 2 µm would be billions). Within them a drawing reads in well
+    under a minute.
+
 Slic3r slice SVG (``slic3r --export-svg``), recognised by its
 ``xmlns:slic3r`` namespace and ``<g slic3r:z=...>`` layers
     Coordinates are already slicer millimetres with y up (no flip). Two writer
@@ -56,6 +67,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import warnings as _warnings  # "warnings" is the list of notes for the user
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +76,7 @@ import shapely
 import shapely.affinity
 from shapely.geometry import MultiPolygon
 
-from printability.errors import FileFormatError
+from printability.errors import FileFormatError, ResourceError, excerpt
 from printability.geometry import as_region, polygons_of
 from printability.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
@@ -80,10 +92,26 @@ from printability.sources._common import (
     unit_scale,
 )
 
-__all__ = ["BACKGROUND_COVERAGE", "is_slic3r_svg", "load_svg_layers", "load_svg_region"]
+__all__ = ["BACKGROUND_COVERAGE", "MAX_DEPTH", "MAX_ELEMENTS", "MAX_SOURCE_POINTS", "MAX_VERTICES",
+           "check_expansion", "is_slic3r_svg", "load_svg_layers", "load_svg_region"]
 
 BACKGROUND_COVERAGE = 0.995
 """Fraction of the canvas an element must cover to count as a page background."""
+
+MAX_ELEMENTS = 10_000
+"""Most elements a drawing may expand to, ``<use>`` copies included (reading costs about
+2 ms per element: 10 000 take some 20 s)."""
+
+MAX_SOURCE_POINTS = 250_000
+"""Most points (pairs of numbers in ``d`` and ``points``; four per basic shape) the drawn
+document may hold, ``<use>`` copies included: svgelements reads path data at some 20 µs a
+number, and every point is then transformed and flattened (about 20 s for this many)."""
+
+MAX_VERTICES = 1_000_000
+"""Most points the outlines may have once curves are flattened (counted as they are)."""
+
+MAX_DEPTH = 200
+"""Deepest nesting of elements (``<g>`` in ``<g>``..., ``<use>`` included) a drawing may have."""
 
 SLIC3R_NS = "http://slic3r.org/namespaces/slic3r"
 _SVG_NS = "http://www.w3.org/2000/svg"
@@ -108,17 +136,19 @@ def _parse_xml(path: Path, raw: bytes) -> Any:
         return DET.fromstring(raw, forbid_dtd=False, forbid_entities=True, forbid_external=True)
     except dx.EntitiesForbidden as exc:
         raise FileFormatError(
-            path, f"refused: the document declares the XML entity {exc.name!r}; entity "
-            "declarations can expand without bound ('billion laughs') or read other files, "
-            "and SVG drawings do not need them", element="<!ENTITY>") from None
+            path, f"refused: the document declares the XML entity "
+            f"{excerpt(str(exc.name), 40)}; entity declarations can expand without bound "
+            "('billion laughs') or read other files, and SVG drawings do not need them",
+            element="<!ENTITY>") from None
     except (dx.ExternalReferenceForbidden, dx.DTDForbidden) as exc:
         raise FileFormatError(
-            path, f"refused: the document references an external resource ({exc}); "
-            "external entities can read local files or URLs", element="<!DOCTYPE>") from None
+            path, "refused: the document references an external resource "
+            f"({excerpt(str(exc), 120)}); external entities can read local files or URLs",
+            element="<!DOCTYPE>") from None
     except DET.ParseError as exc:
         line = exc.position[0] if getattr(exc, "position", None) else None
-        raise FileFormatError(path, f"expected well-formed XML (an SVG document); {exc.msg}"
-                              if hasattr(exc, "msg") else f"expected well-formed XML; {exc}",
+        why = exc.msg if hasattr(exc, "msg") else excerpt(str(exc), 120)
+        raise FileFormatError(path, f"expected well-formed XML (an SVG document); {why}",
                               line=line) from None
 
 
@@ -178,7 +208,7 @@ def _slic3r_stack(path: Path, root: Any, *, units: str | None, fit: float | None
     support = 0
     for gi, g in enumerate(e for e in root.iter() if _local(e.tag) == "g"):
         gid = g.get("id") or f"g[{gi}]"
-        where = f"<g id={gid!r}>"
+        where = f"<g id={excerpt(gid, 40)}>"
         if z_attr not in g.attrib:
             skipped_groups += 1
             continue
@@ -186,7 +216,7 @@ def _slic3r_stack(path: Path, root: Any, *, units: str | None, fit: float | None
             z = float(g.get(z_attr))
         except ValueError:
             raise FileFormatError(path, f"expected a number in slic3r:z; found "
-                                  f"{g.get(z_attr)!r}", element=where) from None
+                                  f"{excerpt(g.get(z_attr))}", element=where) from None
         if not math.isfinite(z):
             raise FileFormatError(path, "slic3r:z is not finite", element=where)
         rings: list[np.ndarray] = []
@@ -259,9 +289,129 @@ def _slic3r_stack(path: Path, root: Any, *, units: str | None, fit: float | None
 
 # ---------------------------------------------------------------- ordinary drawings
 
+_XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
+# Elements whose content is drawn only where a <use> (or a reference) places it.
+_NOT_DRAWN = frozenset({"defs", "symbol", "clipPath", "mask", "pattern", "marker",
+                        "linearGradient", "radialGradient", "filter", "style", "script",
+                        "title", "desc", "metadata"})
+# Points of a basic shape before curves are flattened (curves are counted as flattened).
+_SHAPE_POINTS = {"rect": 4, "circle": 4, "ellipse": 4, "line": 2}
+
+
+def _name(el: Any) -> str:
+    """``<use href="#a11">``, ``<path id="outline">`` or ``<rect>``: an element for messages."""
+    tag = _local(el.tag)
+    for key in ("id", _XLINK_HREF, "href"):
+        value = el.get(key)
+        if value is not None:
+            attr = "id" if key == "id" else "href"
+            return f"<{tag} {attr}={excerpt(value, 40)}>"
+    return f"<{tag}>"
+
+
+def _own_points(el: Any) -> int:
+    tag = _local(el.tag)
+    if tag == "path":
+        return len(_NUM.findall(el.get("d", ""))) // 2
+    if tag in ("polygon", "polyline"):
+        return len(_NUM.findall(el.get("points", ""))) // 2
+    return _SHAPE_POINTS.get(tag, 0)
+
+
+def check_expansion(path: Path, root: Any) -> tuple[int, int]:
+    """Count what a drawing expands to before any of it is built: elements and points,
+    every ``<use>`` counting as a copy of what it refers to.
+
+    Returns
+    -------
+    elements, points
+        Totals of the drawn document (the content of ``<defs>``, ``<symbol>``...
+        counts where a ``<use>`` places it; curves count their control points).
+
+    Raises
+    ------
+    ResourceError
+        More than :data:`MAX_ELEMENTS` elements, :data:`MAX_SOURCE_POINTS` points or
+        :data:`MAX_DEPTH` levels; the message names the element that expands most.
+    FileFormatError
+        A ``<use>`` refers to its own ancestor (the drawing would contain itself).
+    """
+    ids = {el.get("id"): el for el in root.iter() if el.get("id") is not None}
+
+    def parts(el: Any) -> list[Any]:
+        out = [c for c in el if isinstance(c.tag, str) and _local(c.tag) not in _NOT_DRAWN]
+        if _local(el.tag) == "use":
+            ref = el.get(_XLINK_HREF) or el.get("href") or ""
+            target = ids.get(ref[1:]) if ref.startswith("#") else None
+            if target is not None:
+                out.append(target)
+        return out
+
+    # Per element: (elements, points, depth) of one drawn copy, each element once (10^11 is
+    # only a number here); an iterative depth-first walk: a deep document must not exhaust
+    # Python's recursion.
+    size: dict[Any, tuple[int, int, int]] = {}
+    on_path: set[Any] = set()
+    stack: list[tuple[Any, bool, Any]] = [(root, False, root)]  # (element, done, reached from)
+    while stack:
+        el, done, via = stack.pop()
+        if done:
+            on_path.discard(el)
+            kids = [size[k] for k in parts(el)]
+            size[el] = (1 + sum(k[0] for k in kids), _own_points(el) + sum(k[1] for k in kids),
+                        1 + max((k[2] for k in kids), default=0))
+            continue
+        if el in size:
+            continue
+        if el in on_path:
+            raise FileFormatError(path, f"refers to {_name(el)}, which contains it: the drawing "
+                                  "would contain itself without end; expected a <use> of an "
+                                  "element outside it", element=_name(via))
+        on_path.add(el)
+        stack.append((el, True, via))
+        stack.extend((k, False, el) for k in parts(el) if k not in size)
+    if _over(size[root]):
+        # too deep: the whole document is; too many: the element that multiplies them
+        el = root if size[root][2] > MAX_DEPTH else _culprit(root, parts, size)
+        _refuse_expansion(path, el, size)
+    return size[root][:2]
+
+
+def _over(counts: tuple[int, int, int]) -> bool:
+    n, v, d = counts
+    return n > MAX_ELEMENTS or v > MAX_SOURCE_POINTS or d > MAX_DEPTH
+
+
+def _culprit(el: Any, parts: Any, size: dict[Any, tuple[int, int, int]]) -> Any:
+    """The element to name: the deepest one over a limit, following children (a ``<use>``
+    is named rather than what it refers to, which may be anywhere)."""
+    while _local(el.tag) != "use":
+        over = [k for k in parts(el) if k in size and _over(size[k])]
+        if not over:
+            break
+        el = max(over, key=lambda k: size[k])
+    return el
+
+
+def _refuse_expansion(path: Path, el: Any, size: dict[Any, tuple[int, int, int]]) -> None:
+    n, v, d = size[el]
+    if d > MAX_DEPTH:
+        what = f"elements nested {d:,} deep, more than the {MAX_DEPTH} levels allowed"
+    elif n > MAX_ELEMENTS:
+        what = f"{n:,} elements, more than the {MAX_ELEMENTS:,} allowed"
+    else:
+        what = f"{v:,} outline points, more than the {MAX_SOURCE_POINTS:,} allowed"
+    raise ResourceError(f"{path}, {_name(el)}: this draws {what} (every <use> counted as a "
+                        "copy of what it refers to); nothing was drawn. Simplify the drawing "
+                        "(unite shapes, replace nested <use> by one path) or split it")
+
 
 class _OutOfRange(ValueError):
     """A curve's control points are not finite or beyond 1e15 (the message says which)."""
+
+
+class _TooManyPoints(ValueError):
+    """Flattening the curves would give more than :data:`MAX_VERTICES` points."""
 
 
 def _n_bezier(ctrl: np.ndarray, tol: float, k: float) -> int:
@@ -274,38 +424,66 @@ def _n_bezier(ctrl: np.ndarray, tol: float, k: float) -> int:
     return max(1, math.ceil(math.sqrt(k * m / tol))) if m > 0 else 1
 
 
-def _flatten_subpath(sp: Any, se: Any, tol: float) -> tuple[np.ndarray, bool]:
+def _n_arc(r: float, sweep: float, tol: float) -> int:
+    # chord error r·(1 − cos(Δθ/2)) ≤ tol; for tol ≪ r (where 1 − tol/r rounds to 1 and
+    # acos gives 0) the small-angle form Δθ = √(8·tol/r)
+    if not (math.isfinite(r) and math.isfinite(sweep)):
+        raise _OutOfRange("not finite")
+    if r <= tol or sweep == 0:
+        return 1
+    ratio = tol / r
+    step = 2 * math.acos(1 - ratio) if ratio > 1e-8 else math.sqrt(8 * ratio)
+    return max(1, math.ceil(sweep / step))
+
+
+def _flatten_subpath(sp: Any, se: Any, tol: float, budget: list[int]) -> tuple[np.ndarray, bool]:
+    """Points of one subpath, curves flattened within ``tol``; ``budget[0]`` is the number
+    of points still allowed (counted before each curve is flattened)."""
     pts: list[tuple[float, float]] = []
     closed = False
+
+    def take(n: int) -> None:
+        budget[0] -= n
+        if budget[0] < 0:
+            raise _TooManyPoints(n)
+
     for seg in sp:
         if isinstance(seg, se.Move):
+            take(1)
             pts.append((seg.end.x, seg.end.y))
         elif isinstance(seg, se.Close):
             closed = True
         elif isinstance(seg, se.Line):
+            take(1)
             pts.append((seg.end.x, seg.end.y))
         elif isinstance(seg, (se.CubicBezier, se.QuadraticBezier)):
-            if isinstance(seg, se.CubicBezier):
-                ctrl = np.array([[p.x, p.y] for p in
-                                 (seg.start, seg.control1, seg.control2, seg.end)])
-                n = _n_bezier(ctrl, tol, 0.75)
-            else:
-                ctrl = np.array([[p.x, p.y] for p in (seg.start, seg.control, seg.end)])
-                n = _n_bezier(ctrl, tol, 0.25)
+            cubic = isinstance(seg, se.CubicBezier)
+            known = ((seg.start, seg.control1, seg.control2, seg.end) if cubic
+                     else (seg.start, seg.control, seg.end))
+            if any(p is None for p in known):
+                # a curve with no current point ("T 0 0" first): SVG draws nothing before
+                # an M; keep its end, as a line
+                if seg.end is not None:
+                    take(1)
+                    pts.append((seg.end.x, seg.end.y))
+                continue
+            ctrl = np.array([[p.x, p.y] for p in known])
+            n = _n_bezier(ctrl, tol, 0.75 if cubic else 0.25)
+            take(n)
             xy = seg.npoint(np.linspace(0.0, 1.0, n + 1)[1:])
             pts.extend(map(tuple, np.asarray(xy, dtype=float)))
-        elif isinstance(seg, se.Arc):
-            r = max(abs(seg.rx), abs(seg.ry))
-            sweep = abs(float(seg.sweep))
-            if r <= tol or sweep == 0:
-                n = 1
-            else:
-                n = max(1, math.ceil(sweep / (2 * math.acos(1 - tol / r))))
+        elif isinstance(seg, se.Arc) and seg.start is not None and seg.end is not None:
+            n = _n_arc(max(abs(seg.rx), abs(seg.ry)), abs(float(seg.sweep)), tol)
+            take(n)
             xy = seg.npoint(np.linspace(0.0, 1.0, n + 1)[1:])
             pts.extend(map(tuple, np.asarray(xy, dtype=float)))
         elif seg.end is not None:
+            take(1)
             pts.append((seg.end.x, seg.end.y))
     a = np.array(pts, dtype=float).reshape(-1, 2)
+    if not (np.abs(a) <= 1e15).all():  # a line or a shape's corner (rect height="1e309")
+        bad = a[~(np.abs(a) <= 1e15)].flat[0]
+        raise _OutOfRange("not finite" if not math.isfinite(bad) else f"out of range ({bad:g})")
     if len(a) and not closed:
         closed = bool(np.allclose(a[0], a[-1]))
     return a, closed
@@ -374,11 +552,16 @@ def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
                    fit: float | None, settings: Settings) -> LayerStack:
     se = lazy_import("svgelements", "svg", "SVG files")
     warnings: list[str] = []
+    check_expansion(path, root)  # before svgelements copies every <use>
     raw = _hide_symbols(root, raw)
     try:
         svg = se.SVG.parse(io.BytesIO(raw), reify=True, ppi=96.0)
     except Exception as exc:  # svgelements raises many types on bad documents
-        raise FileFormatError(path, f"the SVG could not be interpreted ({exc})") from None
+        raise FileFormatError(path, f"the SVG could not be interpreted "
+                              f"({type(exc).__name__}: {excerpt(str(exc), 120)})") from None
+    if not isinstance(svg, se.SVG):
+        raise FileFormatError(path, "the SVG could not be interpreted (svgelements found no "
+                              "<svg> element in it)", element="<svg>")
     mm_per_px = _doc_scale(root, svg, units, warnings)
     if not (1e-12 <= mm_per_px <= 1e12):
         # width="1e308mm" or a viewBox of 1e308: every later length divides or overflows
@@ -391,10 +574,16 @@ def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
     ignored = sum(1 for e in svg.elements() if isinstance(e, (se.Text, se.Image)))
     if ignored:
         warnings.append(f"{ignored} text or image element(s) ignored (only shapes are read)")
-    # Tolerance in px, tightened by the fit scale estimated from the shapes' bounding boxes.
-    boxes = [b for b in (e.bbox() for e in shapes) if b is not None]
+    # Tolerance in px, tightened by the fit scale estimated from the shapes' bounding boxes
+    # (only with fit: svgelements takes about a millisecond per arc for a box).
+    boxes = []
+    if fit is not None:
+        # an overflowing box (coordinates near 1e308) is refused below, point by point
+        with np.errstate(all="ignore"), _warnings.catch_warnings():
+            _warnings.simplefilter("ignore", RuntimeWarning)
+            boxes = [b for b in (e.bbox() for e in shapes) if b is not None]
     scale = mm_per_px
-    if fit is not None and boxes:
+    if boxes:
         b = np.array(boxes, dtype=float)
         longest = max(b[:, 2].max() - b[:, 0].min(), b[:, 3].max() - b[:, 1].min())
         if longest > 0:
@@ -403,6 +592,7 @@ def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
 
     filled: list[tuple[str, Any]] = []
     outlines: list[np.ndarray] = []
+    budget = [MAX_VERTICES]  # points left once curves are flattened
     for idx, el in enumerate(shapes):
         p = abs(se.Path(el))  # abs() applies the element's transform to its segments
         fill_ok = _visible_fill(el)
@@ -410,14 +600,22 @@ def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
         if not (fill_ok or stroke_ok):
             continue
         rings = []
+        element = f"<{_local(el.values.get('tag', 'path'))}> #{idx + 1}" + (
+            f" id={excerpt(el.id, 40)}" if el.id else "")
         for sp in p.as_subpaths():
             try:
-                a, closed = _flatten_subpath(sp, se, tol)
+                a, closed = _flatten_subpath(sp, se, tol, budget)
             except _OutOfRange as exc:
                 raise FileFormatError(path, f"a coordinate of this shape is {exc} (expected "
-                                      "finite numbers up to 1e15)",
-                                      element=f"<{_local(el.values.get('tag', 'path'))}> "
-                                              f"#{idx + 1}") from None
+                                      "finite numbers up to 1e15)", element=element) from None
+            except _TooManyPoints as exc:
+                raise ResourceError(
+                    f"{path}, {element}: flattening the curves of this drawing within "
+                    f"{settings.chord_tolerance:g} mm would give more than {MAX_VERTICES:,} "
+                    f"points (one of this shape's curves alone asks for {exc.args[0]:,}); nothing "
+                    "was drawn. A curve this large for its tolerance is usually a units mistake: "
+                    "check the drawing's size, or pass fit= / a coarser chord tolerance"
+                ) from None
             if len(a) < 3:
                 continue
             if fill_ok:
@@ -471,6 +669,11 @@ def _read(path: str | Path, settings: Settings) -> tuple[Path, bytes, Any]:
     if _local(root.tag) != "svg":
         raise FileFormatError(p, f"expected an <svg> root element; found <{_local(root.tag)}>",
                               element=f"<{_local(root.tag)}>")
+    namespace = root.tag[1:].partition("}")[0] if root.tag.startswith("{") else _SVG_NS
+    if namespace != _SVG_NS:
+        # another vocabulary's <svg> (a mistyped xmlns): svgelements reads none of it as SVG
+        raise FileFormatError(p, f"expected the SVG namespace xmlns=\"{_SVG_NS}\"; found "
+                              f"{excerpt(namespace)}", element="<svg>")
     return p, raw, root
 
 
