@@ -24,6 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
+
 __all__ = [
     "KIND_BLANK",
     "KIND_COMMAND",

@@ -30,6 +30,9 @@ import math
 import numpy as np
 
 from gcode.flavors import flavor_named
+from printability.base.kernel_cache import guard as _guard_kernel_caches
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["ERR_MESSAGES", "MOVE_FIELDS", "run_machine"]
 

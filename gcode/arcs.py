@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from printability._arrays import take_rows
+from printability.base.arrays import take_rows
 
 __all__ = ["SEGMENT_DTYPE", "arc_chord_count", "arc_length", "linearise"]
 

@@ -37,6 +37,9 @@ import numba
 import numpy as np
 
 from gcode.flavors import PlannerLimits, RotaryAxis
+from printability.base.kernel_cache import guard as _guard_kernel_caches
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["PlannerLimits", "PrintTime", "estimate_print_time", "format_duration"]
 

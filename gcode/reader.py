@@ -42,7 +42,7 @@ from gcode._machine import ERR_MESSAGES, run_machine
 from gcode.arcs import linearise
 from gcode.dialects import CommentInfo, feature_category, scan_comments
 from gcode.line import ParsedLine, parse_line
-from printability.errors import (
+from printability.base.errors import (
     EXCERPT_LENGTH,
     FileFormatError,
     InputError,
@@ -50,8 +50,8 @@ from printability.errors import (
     ResourceError,
     excerpt,
 )
-from printability.options import FLAVORS
-from printability.settings import DEFAULT_SETTINGS, Settings
+from printability.base.options import FLAVORS
+from printability.base.settings import DEFAULT_SETTINGS, Settings
 
 __all__ = [
     "LAYER_DTYPE",

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from gcode.rotary import BEAD_MODELS, e_per_mm, feed_for_move, nearest_equivalent
+from printability.base.errors import InputError, UnknownOptionError
 
 if TYPE_CHECKING:
     from gcode.line import ParsedLine
@@ -127,15 +128,15 @@ class WriterOptions:
 
     def __post_init__(self) -> None:
         if len(self.letter) != 1 or self.letter.upper() not in "ABCUVW":
-            raise ValueError(f"rotary letter must be one of A B C U V W; got {self.letter!r}")
+            raise InputError(f"rotary letter must be one of A B C U V W; got {self.letter!r}")
         if self.feed_policy not in _FEED_POLICIES:
-            raise ValueError(f"unknown feed policy {self.feed_policy!r}; expected one of: "
-                             f"{', '.join(_FEED_POLICIES)}")
+            raise UnknownOptionError(f"unknown feed policy {self.feed_policy!r}; expected one "
+                                     f"of: {', '.join(_FEED_POLICIES)}")
         if self.bead_model not in BEAD_MODELS:
-            raise ValueError(f"unknown bead model {self.bead_model!r}; expected one of: "
-                             f"{', '.join(BEAD_MODELS)}")
+            raise UnknownOptionError(f"unknown bead model {self.bead_model!r}; expected one "
+                                     f"of: {', '.join(BEAD_MODELS)}")
         if self.period < 0 or self.angle_max < self.angle_min:
-            raise ValueError("rotary period must be >= 0 and angle_max >= angle_min")
+            raise InputError("rotary period must be >= 0 and angle_max >= angle_min")
 
     @property
     def rounding(self) -> float:

@@ -22,7 +22,7 @@ from machine_io.protocol import (
     parse_temperatures,
 )
 from machine_io.transport import LineReader, open_port
-from printability.errors import PrinterError, excerpt
+from printability.base.errors import PrinterError, excerpt
 
 __all__ = ["ConnectionMixin"]
 

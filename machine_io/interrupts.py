@@ -27,7 +27,7 @@ from machine_io.protocol import command_code, parse_reply
 from machine_io.resend import _Stop
 from machine_io.session import Progress
 from machine_io.transport import LineReader
-from printability.errors import PrinterError
+from printability.base.errors import PrinterError
 
 __all__ = ["STOP_SIGNALS", "InterruptsMixin"]
 

@@ -28,7 +28,7 @@ from typing import Any, BinaryIO, overload
 
 from machine_io.protocol import EXTRA_AXES, command_code
 from machine_io.session import StreamReport
-from printability.errors import InputError, PrintabilityOSError, ResourceError, excerpt
+from printability.base.errors import InputError, PrintabilityOSError, ResourceError, excerpt
 
 __all__ = [
     "MachineState",
@@ -441,7 +441,7 @@ def load_program(path: str | Path, *,
     path = Path(path)
     check_gcode_file(path)
     if max_memory is None:
-        from printability.settings import default_memory_limit
+        from printability.base.settings import default_memory_limit
 
         max_memory = default_memory_limit()
     need = program_memory(path)

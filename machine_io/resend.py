@@ -25,7 +25,7 @@ from machine_io.protocol import (
     is_protocol_error,
     parse_reply,
 )
-from printability.errors import excerpt
+from printability.base.errors import excerpt
 
 __all__ = ["ResendMixin"]
 

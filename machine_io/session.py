@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from machine_io.protocol import FirmwareInfo
-from printability.errors import InputError, PrintabilityOSError
-from printability.options import EXTRUDER_ERROR_POLICIES, STREAM_MODES
+from printability.base.errors import InputError, PrintabilityOSError
+from printability.base.options import EXTRUDER_ERROR_POLICIES, STREAM_MODES
 
 __all__ = ["DEFAULT_CANCEL_GCODE", "HostConfig", "Progress", "StreamReport", "Transcript"]
 

@@ -18,7 +18,7 @@ import serial
 from machine_io.program import Program, check_line_lengths, restore_commands, state_at
 from machine_io.resend import _Stop
 from machine_io.session import Progress, StreamReport
-from printability.errors import InputError, PrinterError
+from printability.base.errors import InputError, PrinterError
 
 __all__ = ["StreamingMixin"]
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import serial
 
-from printability.errors import PrintabilityOSError, excerpt
+from printability.base.errors import PrintabilityOSError, excerpt
 
 __all__ = ["URL_HANDLER_PACKAGES", "LineReader", "open_port"]
 

@@ -13,8 +13,5 @@ __version__ = "0.1.0"
 
 __all__ = ["__version__"]
 
-# before any kernel is loaded: on-disk kernel caches older than a kernel module they
-# compiled in are removed (numba checks only each kernel's own file; see _jit_cache)
-from printability._jit_cache import check as _check_kernel_caches
-
-_check_kernel_caches()
+# Importing the package runs nothing: the kernel-cache check (printability.base.kernel_cache)
+# runs before the first kernel compiles or loads, armed by each kernel module's guard().

@@ -40,6 +40,9 @@ import numpy as np
 
 from gcode.writer import format_number
 from printability._rewrite_kernel import _nearest, _reserve, fixed_digits, put_fixed
+from printability.base.kernel_cache import guard as _guard_kernel_caches
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["DECLINED", "OK", "emit", "emit_pieces", "group_pieces", "hypot"]
 

@@ -35,6 +35,10 @@ import math
 import numba
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
+
 __all__ = ["fixed_digits", "parse_number", "put_fixed", "rewrite_kernel", "simple_span"]
 
 OK = 0

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from gcode.flavors import Flavor, PlannerLimits, RotaryAxis, flavor_named
-from printability.errors import FileFormatError, InputError, PrintabilityOSError
+from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
 from printability.options import FEED_POLICIES, FLAVORS, JOINT_KINDS, MACHINE_KINDS
 
 if sys.version_info >= (3, 11):
@@ -249,15 +249,23 @@ class Machine:
 # --------------------------------------------------------------------------- parsing
 
 
+def _shown(value: Any) -> str:
+    """``value`` (from a file or the command line) for a message: a number as it is, anything
+    else as a short excerpt (:func:`printability.errors.excerpt`)."""
+    if isinstance(value, (int, float)):
+        return repr(value)
+    return excerpt(value if isinstance(value, str) else repr(value))
+
+
 def _num(where: str, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(f"{where}: {key} expects a finite number; found {value!r}")
+        raise InputError(f"{where}: {key} expects a finite number; found {_shown(value)}")
     return float(value)
 
 
 def _pair(where: str, key: str, value: Any) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise InputError(f"{where}: {key} expects a pair [a, b]; found {value!r}")
+        raise InputError(f"{where}: {key} expects a pair [a, b]; found {_shown(value)}")
     return (_num(where, key, value[0]), _num(where, key, value[1]))
 
 
@@ -373,7 +381,7 @@ def _rotary_axis(where: str, rot: Mapping[str, Any], letter: str, lo: float,
     """The ``[rotary]`` table's axis: limits and what the firmware's planner needs."""
     for key in rot:
         if key not in _ROTARY_KEYS:
-            raise FileFormatError(where, f"unknown key {key!r}; expected one of: "
+            raise FileFormatError(where, f"unknown key {_shown(key)}; expected one of: "
                                   f"{', '.join(sorted(_ROTARY_KEYS))}", element="[rotary]")
     d = RotaryAxis()
     kw: dict[str, Any] = {}
@@ -388,7 +396,7 @@ def _rotary_axis(where: str, rot: Mapping[str, Any], letter: str, lo: float,
     stepper = rot.get("stepper", d.stepper)
     if not isinstance(stepper, str) or not stepper or not stepper.replace("_", "").isalnum():
         raise FileFormatError(where, "stepper expects the name of a Klipper [manual_stepper] "
-                              f"section (letters, digits, _); found {stepper!r}",
+                              f"section (letters, digits, _); found {_shown(stepper)}",
                               element="[rotary]")
     full = hi - lo >= 360.0 - 1e-9
     return RotaryAxis(letter=letter, min_angle=-math.inf if full else lo,
@@ -403,7 +411,7 @@ def _planner(where: str, table: Any, filament_diameter: float) -> PlannerLimits:
     kw: dict[str, Any] = {"filament_diameter": filament_diameter}
     for key, value in table.items():
         if key not in names:
-            raise FileFormatError(where, f"unknown key {key!r}; expected one of: "
+            raise FileFormatError(where, f"unknown key {_shown(key)}; expected one of: "
                                   f"{', '.join(names)}", element="[planner]")
         kw[key] = _num(where, f"[planner] {key}", value)
     try:
@@ -415,7 +423,7 @@ def _planner(where: str, table: Any, filament_diameter: float) -> PlannerLimits:
 def _letter(where: str, value: Any) -> str:
     if not isinstance(value, str) or len(value) != 1 or value.upper() not in "ABCUVW":
         raise InputError(f"{where}: rotary letter expects one of A, B, C, U, V, W; "
-                         f"found {value!r}")
+                         f"found {_shown(value)}")
     return value.upper()
 
 
@@ -424,13 +432,24 @@ def builtin_profiles() -> dict[str, Path]:
     return {p.stem: p for p in sorted(_DATA.glob("*.toml"))}
 
 
+#: Largest machine profile read, bytes.
+MAX_PROFILE_SIZE = 1 << 20
+
+
 def load_machine_file(path: str | Path) -> Machine:
     """Read a machine profile from a TOML file (see the shipped examples)."""
     path = Path(path)
+    if path.exists() and not path.is_file():  # a FIFO would block, /dev/zero never end
+        raise PrintabilityOSError(f"{path}: not a regular file (expected a machine profile, a "
+                                  "TOML file)")
     try:
-        data = path.read_bytes()
+        with path.open("rb") as fh:
+            data = fh.read(MAX_PROFILE_SIZE + 1)
     except OSError as exc:
         raise PrintabilityOSError(f"{path}: cannot read machine profile ({exc.strerror})") from None
+    if len(data) > MAX_PROFILE_SIZE:
+        raise FileFormatError(path, f"a machine profile is expected to be at most "
+                              f"{MAX_PROFILE_SIZE >> 10} KiB (a TOML file of a few tables)")
     try:
         doc = tomllib.loads(data.decode("utf-8"))
     except UnicodeDecodeError:
@@ -464,18 +483,18 @@ def parse_machine(spec: str | Machine) -> Machine:
         # (a profile named like a kind, ttr.toml, is reached by its path, not its name)
         choices = ", ".join(["xy", "ttr", *(n for n in profiles if n not in ("xy", "ttr")),
                              "FILE.toml"])
-        raise InputError(f"unknown machine {head!r}; expected one of: {choices}")
+        raise InputError(f"unknown machine {_shown(head)}; expected one of: {choices}")
     kind = head.lower()
     params: dict[str, str] = {}
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, eq, value = item.partition("=")
         if not eq or key.strip().lower() not in ("min", "max", "step", "letter"):
-            raise InputError(f"machine spec {text!r}: expected min=, max=, step= or letter=; "
-                             f"found {item!r}")
+            raise InputError(f"machine spec {_shown(text)}: expected min=, max=, step= or letter=; "
+                             f"found {_shown(item)}")
         params[key.strip().lower()] = value.strip()
     if kind == "xy":
         if params:
-            raise InputError(f"machine spec {text!r}: an xy machine takes no parameters")
+            raise InputError(f"machine spec {_shown(text)}: an xy machine takes no parameters")
         return Machine(name="xy", kind="xy", spec=text, bed=DEFAULT_BED)
     nums = {}
     for key in ("min", "max", "step"):
@@ -483,12 +502,13 @@ def parse_machine(spec: str | Machine) -> Machine:
             try:
                 nums[key] = float(params[key])
             except ValueError:
-                raise InputError(f"machine spec {text!r}: {key}= expects a number of degrees; "
-                                 f"found {params[key]!r}") from None
+                raise InputError(f"machine spec {_shown(text)}: {key}= expects a number of "
+                                 f"degrees; found {_shown(params[key])}") from None
     lo, hi = nums.get("min", -180.0), nums.get("max", 180.0)
     step = nums.get("step", DEFAULT_TTR_STEP)
-    _rotary_range(f"machine spec {text!r}", lo, hi, step)
-    letter = _letter(f"machine spec {text!r}", params["letter"]) if "letter" in params else "C"
+    where = f"machine spec {_shown(text)}"
+    _rotary_range(where, lo, hi, step)
+    letter = _letter(where, params["letter"]) if "letter" in params else "C"
     full = hi - lo >= 360.0 - 1e-9
     return Machine(name="ttr", kind="ttr", spec=text, angle_min=lo, angle_max=hi,
                    angle_step=step, rotary_letter=letter, bed=DEFAULT_BED,

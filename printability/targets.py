@@ -21,11 +21,14 @@ import numba
 import numpy as np
 
 from printability._arrays import take_rows
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion.beadunion import INNER, SIDE, bead_union
 from printability.motion.footprints import grown_target
 from printability.motion.tiles import tile_index, tile_layers
 from printability.settings import Settings
 from printability.sources.gcode import layer_beads, layer_regions
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["layer_targets", "threaded"]
 

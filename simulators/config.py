@@ -17,11 +17,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-from printability.errors import InputError
+from printability.base.errors import InputError
+from printability.base.options import ENDSTOP_POLICIES, FIRMWARE_PROFILES, SIM_CLOCKS
 from printability.layers import LayerStack
 from printability.machine import Machine, builtin_profiles, load_machine_file, parse_machine
 from printability.nozzle import Nozzle, parse_nozzle
-from printability.options import ENDSTOP_POLICIES, FIRMWARE_PROFILES, SIM_CLOCKS
 from simulators.faults import FaultPlan
 
 __all__ = ["FirmwareProfile", "SimConfig", "firmware_profile", "make_config", "resolve_machine"]

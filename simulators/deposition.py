@@ -28,7 +28,7 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.strtree import STRtree
 
-from printability.errors import PrintabilityOSError
+from printability.base.errors import PrintabilityOSError
 from printability.geometry import polygons_of
 from printability.layers import LayerStack
 from printability.nozzle import Nozzle

@@ -20,8 +20,8 @@ import math
 import random
 from dataclasses import dataclass
 
-from printability.errors import InputError
-from printability.options import FAULT_KINDS
+from printability.base.errors import InputError
+from printability.base.options import FAULT_KINDS
 
 __all__ = ["Fault", "FaultInjector", "FaultPlan"]
 

@@ -46,7 +46,7 @@ from collections.abc import Generator
 from dataclasses import dataclass, field
 from typing import Any
 
-from printability.errors import PrinterError
+from printability.base.errors import PrinterError
 from simulators.commands import CommandsMixin, Heater
 from simulators.config import SimConfig
 from simulators.deposition import Deposition, DepositionRecord, write_record

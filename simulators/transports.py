@@ -40,7 +40,7 @@ import tty
 from collections import deque
 from collections.abc import Callable
 
-from printability.errors import PrintabilityOSError
+from printability.base.errors import PrintabilityOSError
 from simulators.config import SimConfig
 from simulators.firmware import Disconnect, Firmware, Stall
 

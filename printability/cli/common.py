@@ -8,13 +8,13 @@ import json
 import os
 import signal
 import sys
-import tempfile
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from printability.errors import PrintabilityOSError, StoppedError
+from printability.base.files import write_atomic
+from printability.errors import StoppedError
 from printability.options import Registry
 
 __all__ = ["MACHINE_SPEC_HELP", "NOZZLE_SPEC_HELP", "choices_help", "note_default_layer_height",
@@ -74,31 +74,6 @@ def choices_help(registry: Registry, text: str) -> str:
     return f"{text} One of: {', '.join(registry.choices)}."
 
 
-def write_atomic(path: str | Path, data: bytes | str) -> None:
-    """Write a file through a temporary file in the same folder and a rename.
-
-    A reader never sees a half-written file, and on failure the previous file
-    (if any) is left untouched.
-    """
-    path = Path(path)
-    raw = data.encode("utf-8") if isinstance(data, str) else data
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as exc:
-        raise PrintabilityOSError(f"{path}: cannot write ({exc.strerror})") from None
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(raw)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise PrintabilityOSError(f"{path}: cannot write ({exc.strerror})") from None
-
-
 def write_json_atomic(path: str | Path, doc: Any) -> None:
     write_atomic(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
@@ -129,18 +104,25 @@ def stop_signals_raise(what: str) -> Iterator[None]:
     Their default action ends the process at once, leaving a half-written temporary file
     beside the user's; raised as an exception, the atomic write's cleanup runs and the user
     reads one paragraph (``what`` says what is left as it was). Only in the main thread
-    (signal handlers can be set nowhere else).
+    (signal handlers can be set nowhere else). A handler set before (``printability
+    serve``'s: the signal stops the server, not only this run) runs first, and what it
+    raises stops the block instead.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    def stop(signum: int, _frame: object) -> None:
+    old: dict = {}
+
+    def stop(signum: int, frame: object) -> None:
+        before = old.get(signum)
+        if callable(before):
+            before(signum, frame)
         raise StoppedError(f"stopped by {signal.Signals(signum).name}; {what}")
 
     names = ("SIGTERM", "SIGHUP", "SIGQUIT")
-    old = {sig: signal.signal(sig, stop) for sig in (getattr(signal, n) for n in names
-                                                      if hasattr(signal, n))}
+    for sig in (getattr(signal, n) for n in names if hasattr(signal, n)):
+        old[sig] = signal.signal(sig, stop)
     try:
         yield
     finally:

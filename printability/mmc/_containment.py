@@ -17,8 +17,11 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.geometry import polygons_of
 from printability.mmc.reference import Orifice, offset_orifice
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["ContainmentTest", "Edges", "boundary_edges", "containment_test",
            "run_containment_test"]

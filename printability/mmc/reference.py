@@ -65,6 +65,7 @@ import shapely.affinity
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.errors import InputError, ResourceError
 from printability.geometry import polygons_of, rotation_matrix
 from printability.machine import Machine
@@ -72,6 +73,8 @@ from printability.mmc.components import angle_ranges, component_labels
 from printability.mmc.result import Components, MMCResult, MotionRestriction
 from printability.nozzle import Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = [
     "DEFAULT_MAX_WORK",

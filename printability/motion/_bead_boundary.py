@@ -23,11 +23,14 @@ import math
 import numba
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._kernels import cell_of as _cell
 from printability.motion._kernels import clip_step as _clip_step
 from printability.motion._kernels import point_segment2 as _point_segment2
 from printability.motion._kernels import segment_offset as _segment_offset
 from printability.motion._kernels import segments2 as _segments2
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["_boundary", "_clip", "_clip_windows", "_corner_cosines", "_green", "_window"]
 

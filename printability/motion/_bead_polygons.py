@@ -19,7 +19,10 @@ import math
 import numba
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._kernels import bin_boxes as _bin_boxes
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["_grid", "_polygons"]
 

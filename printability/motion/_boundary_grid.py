@@ -21,8 +21,11 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._kernels import bin_boxes
 from printability.motion.beadunion import BeadUnion
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["boundary_grid"]
 

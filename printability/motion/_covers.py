@@ -33,10 +33,13 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._boundary_grid import boundary_grid
 from printability.motion._kernels import cell_of as _cell
 from printability.motion._kernels import clip_step as _clip_step
 from printability.motion.beadunion import BeadUnion, union_contains_xy, union_covers
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["EPS", "_clip", "_edges_state", "_order", "contains_xy", "covers", "covers_rings"]
 

@@ -15,6 +15,7 @@ import math
 import numba
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._covers import _clip, _edges_state
 from printability.motion._point_location import _locate
 from printability.motion._sweep import (
@@ -24,6 +25,8 @@ from printability.motion._sweep import (
     _offsets,
     _sweep_frame,
 )
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["first_fits"]
 

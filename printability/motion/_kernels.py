@@ -11,6 +11,10 @@ import math
 import numba
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
+
 __all__ = ["bin_boxes", "cell_of", "clip_step", "point_segment2", "segment_offset", "segments2"]
 
 

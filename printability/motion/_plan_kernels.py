@@ -14,6 +14,10 @@ import math
 import numba
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
+
 __all__ = ["chain_nearest", "chain_viterbi", "distinct_candidates", "fold_pairs", "merge_pieces",
            "piece_losses", "points_along", "smooth_chain", "split_intervals", "width_picks"]
 

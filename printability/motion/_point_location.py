@@ -15,9 +15,12 @@ import numba
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._kernels import cell_of as _cell
 from printability.motion._kernels import point_segment2 as _point_segment2
 from printability.motion.beadunion import BeadUnion, in_polygons
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["_AXIS", "_locate", "_near_axis", "locator"]
 

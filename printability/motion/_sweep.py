@@ -22,7 +22,10 @@ import math
 import numba
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._kernels import segments2 as _segments2
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["_deep_in_frame", "_deep_in_sweep", "_directions", "_move_normal", "_offsets",
            "_sweep_frame", "swept_kernel"]

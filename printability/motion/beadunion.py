@@ -76,10 +76,13 @@ import numpy as np
 import shapely
 
 from printability._parallel import shared_out
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.errors import InputError
 from printability.motion._bead_boundary import _boundary, _green
 from printability.motion._bead_polygons import _grid, _polygons
 from printability.motion._kernels import cell_of as _cell
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["INNER", "SIDE", "BeadUnion", "bead_union", "in_polygons", "union_contains_xy",
            "union_covers"]

@@ -31,7 +31,10 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.errors import InputError
+
+_guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["Tiling", "tile_index", "tile_layers"]
 

@@ -26,7 +26,7 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
 
-from printability.errors import PrintabilityError
+from printability.base.errors import PrintabilityError
 from simulators.config import make_config
 from simulators.transports import Link
 

@@ -108,3 +108,75 @@ def test_a_bad_argument_on_a_cold_install_is_one_paragraph(tmp_path, shared_data
                        timeout=300)
     assert p.returncode == 1
     assert p.stderr.startswith("printability: error: unknown nozzle kind 'hexagon'"), p.stderr
+
+
+def test_every_kernel_module_arms_the_check_before_its_kernels():
+    """The check runs before the first compile or cache load (not when the package is
+    imported): each kernel module calls the guard, above its first cached kernel."""
+    for rel in _jit_cache.KERNEL_MODULES:
+        text = (ROOT / rel).read_text(encoding="utf-8")
+        call = text.find("\n_guard_kernel_caches()")
+        assert call != -1, f"{rel}: call printability.base.kernel_cache.guard() at the top"
+        assert call < text.find("cache=True"), f"{rel}: the guard comes after a kernel"
+
+
+_ORDER_PROBE = r"""
+import sys
+import numba.core.caching as caching
+import printability.base.kernel_cache as k
+
+order = []
+k.check = lambda root=None: order.append("check")  # the real one may remove caches
+
+
+class Stop(Exception):
+    pass
+
+
+def load(self, sig, target_context):
+    order.append("load")
+    raise Stop  # no compile: only the order matters
+
+
+caching.Cache.load_overload = load
+import printability, printability.base.errors  # noqa: E401
+assert "printability.base.kernel_cache" in sys.modules  # (this probe imported it)
+import gcode.reader
+
+print("jit_cache", "printability._jit_cache" in sys.modules)
+print("after-import", order, k._checked)
+try:
+    gcode.reader.parse_gcode(b"G1 X1 Y1\n")
+except Stop:
+    pass
+print("after-call", order[:2])
+"""
+
+
+def test_importing_the_reader_runs_no_check_and_the_check_precedes_the_first_load():
+    """``import gcode.reader`` (which imports kernel modules) writes nothing and does not
+    import printability._jit_cache; its first kernel call runs the check before numba loads
+    any cache. A fresh process, so that nothing else has run the check first."""
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-c", _ORDER_PROBE], capture_output=True, text=True,
+                       cwd=ROOT, timeout=300)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert lines == ["jit_cache False", "after-import [] False",
+                     "after-call ['check', 'load']"], p.stdout + p.stderr
+
+
+def test_importing_the_package_or_its_base_loads_no_kernel_machinery():
+    import subprocess
+    import sys
+
+    code = ("import sys, printability, printability.base.errors, printability.base.options, "
+            "printability.base.settings, printability.errors;"
+            "print(sorted(m for m in sys.modules if 'kernel_cache' in m or 'jit_cache' in m "
+            "or m.split('.')[0] == 'numba'))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                       timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "[]"

@@ -227,3 +227,18 @@ def test_edit_e_leaves_other_lines_to_edit_line(raw):
 def test_no_non_finite_number_is_ever_written(value):
     with pytest.raises(ValueError, match="non-finite"):
         format_number(value, 3)
+
+
+@pytest.mark.parametrize(("changes", "match"), [
+    ({"letter": "Q"}, "rotary letter"), ({"letter": "AB"}, "rotary letter"),
+    ({"feed_policy": "fast"}, "feed policy"), ({"bead_model": "oval"}, "bead model"),
+    ({"period": -1.0}, "period"),
+])
+def test_bad_writer_options_are_input_errors(changes, match):
+    """A bad --letter (or other writer option) is the user's error: InputError, which the CLI
+    prints as one paragraph (it was a plain ValueError and a traceback); still a ValueError."""
+    from printability.base.errors import InputError
+
+    with pytest.raises(InputError, match=match) as info:
+        WriterOptions(**changes)
+    assert isinstance(info.value, ValueError)
