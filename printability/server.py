@@ -2,20 +2,33 @@
 
 The ``printability-postprocess`` entry point first offers its run to this
 server (:func:`printability.server_client.run_remote`, where the address,
-the messages and the fall-back rule are documented) and runs locally only
-when there is none. The server runs each request as the command line would
-(:func:`printability.cli.main.run`), in its own process, one at a time in
-the order they arrive, with the request's working directory and its
-``SLIC3R_*``/``PRINTABILITY_*`` variables, and returns the exit code and
-what the command printed. The output file is therefore byte for byte what a
-local run writes, and an error is the same one paragraph with exit code 1.
+the messages, the deadlines and the fall-back rule are documented) and runs
+locally only when there is none. The server runs each request as the command
+line would (:func:`printability.cli.main.run`), in its own process, one at a
+time in the order they arrive, with the request's working directory and its
+``SLIC3R_*``/``PRINTABILITY_*`` variables, and returns the exit code and what
+the command printed. The output file is therefore byte for byte what a local
+run writes, and an error is the same one paragraph with exit code 1.
 
 It declines (and the client runs locally) when the client's version is not
 its own, when a file the command names is not the one the client sees (same
-device, inode, size and time: a sandbox or container with its own /tmp), and
-for any command but ``postprocess``; it declines and stops when any source file of the installed
+device, inode, size and time: a sandbox or container with its own /tmp), when
+the client's ticket is gone (it stopped waiting), and for any command but
+``postprocess``; it declines and stops when any source file of the installed
 packages changed since it started (an edited or upgraded install), so it
 never runs code other than what is on disk.
+
+Nothing a client sends stops it. Each connection has its own thread, which
+reads the request within :data:`_REQUEST_TIMEOUT` s and :data:`_MAX_REQUEST`
+bytes and checks every field (:func:`check_request`); anything else is
+answered with a one-line refusal, and logged. Only the work itself is
+serialized, in the thread that called :func:`serve` (it swaps the process's
+environment, directory and standard streams): a silent or slow client holds
+its own thread and nothing else. While a request waits or runs, its thread
+sends the client a heartbeat a second. A run removes the client's ticket just
+before it replaces the first file (:class:`_WriteGate`): when the client took
+it first (it stopped waiting and runs the command itself), the run writes
+nothing.
 
 Complexity: per request the work itself, plus a stat of the packages' source
 files (about a millisecond) and a JSON round trip of the command's output.
@@ -25,36 +38,50 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import errno
 import io
 import os
+import queue
+import re
+import select
 import signal
 import socket
 import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from printability import __version__
 from printability.errors import PrintabilityOSError
 from printability.server_client import (
     PROTOCOL,
+    TICKET_PREFIX,
+    MessageError,
     ServerAddressError,
     call,
     default_address,
     file_identities,
     forwarded,
-    recv_message,
+    read_message,
     secure_dir,
     send_message,
+    take_ticket,
 )
 
-__all__ = ["ServeResult", "retain_freed_memory", "serve", "server_status", "source_stamp",
-           "stop_server"]
+__all__ = ["ServeResult", "check_request", "retain_freed_memory", "serve", "server_status",
+           "source_stamp", "stop_server"]
 
 _PACKAGES = ("printability", "gcode", "machine_io", "plugin", "simulators")
-_REQUEST_TIMEOUT = 10.0  # s to receive a request once connected (a silent client is dropped)
+_REQUEST_TIMEOUT = 10.0  # s to receive a whole request once connected (then it is refused)
+_MAX_REQUEST = 8 << 20  # bytes; a slicer's whole environment is below 2 MiB (ARG_MAX)
+_MAX_CLIENTS = 32  # connections served at once; more are refused at once
+_MAX_ITEMS = 10_000  # arguments, variables or files in a request
+_HEARTBEAT = 1.0  # s between the empty frames sent to a client waiting for its reply
+_SEND_TIMEOUT = 10.0  # s for a reply (or a heartbeat) to leave; a client that does not read
+_TICKET_AGE = 86_400.0  # s after which a ticket left behind (its client killed) is removed
 _KEEP_BELOW = 64 << 20  # bytes: blocks up to this come from the heap and are reused
 _KEEP_FREE = 256 << 20  # bytes of freed heap kept for the next request
 
@@ -164,12 +191,190 @@ def _run_command(argv: list[str], cwd: str, env: dict[str, str]) -> tuple[int, s
     return rc, out.getvalue(), err.getvalue()
 
 
-def _valid_run(req: dict) -> bool:
-    return (isinstance(req.get("argv"), list) and all(isinstance(a, str) for a in req["argv"])
-            and isinstance(req.get("cwd"), str) and isinstance(req.get("env"), dict)
-            and all(isinstance(k, str) and isinstance(v, str) for k, v in req["env"].items())
-            and isinstance(req.get("files"), dict)
-            and all(isinstance(k, str) and isinstance(v, list) for k, v in req["files"].items()))
+# --- what a request may hold ------------------------------------------------------------
+
+class _Refusal(Exception):
+    """A request not served; the text is the one-line reason sent back and logged."""
+
+
+_FIELDS = {
+    "status": frozenset({"protocol", "version", "op"}),
+    "stop": frozenset({"protocol", "version", "op"}),
+    "run": frozenset({"protocol", "version", "op", "argv", "cwd", "env", "files", "ticket"}),
+}
+_TICKET = re.compile(TICKET_PREFIX + r"[0-9a-f]{32}\Z")
+
+
+def _show(value: object) -> str:
+    """A value for a one-line message: its repr, cut to 40 characters."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _kind(value: object) -> str:
+    names = {str: "a string", bool: "true or false", int: "a number", float: "a number",
+             list: "a list", dict: "an object", type(None): "null"}
+    return names.get(type(value), type(value).__name__)
+
+
+def _text(value: object, what: str) -> str:
+    """``value`` when it is a string a file name, an argument or a variable can hold."""
+    if not isinstance(value, str):
+        raise _Refusal(f"malformed request: {what} must be a string, not {_kind(value)}")
+    if "\0" in value:
+        raise _Refusal(f"malformed request: {what} {_show(value)} contains a NUL character")
+    try:
+        os.fsencode(value)
+    except UnicodeError:
+        raise _Refusal(f"malformed request: {what} {_show(value)} cannot be encoded for the "
+                       "system") from None
+    return value
+
+
+def _collection(value: object, kind: type, what: str) -> None:
+    if not isinstance(value, kind):
+        raise _Refusal(f"malformed request: {what} must be {_kind(kind())}, not {_kind(value)}")
+    if len(value) > _MAX_ITEMS:
+        raise _Refusal(f"malformed request: {what} has {len(value)} items, more than "
+                       f"{_MAX_ITEMS}")
+
+
+def check_request(req: dict) -> str:
+    """The operation of a request (``run``, ``status`` or ``stop``) after checking each of
+    its fields; :class:`_Refusal` (an exception whose text is the reply's one-line reason)
+    otherwise.
+
+    A run's ``argv`` is a list of strings starting with ``postprocess``, ``cwd`` an absolute
+    path, ``env`` an object of ``SLIC3R_*``/``PRINTABILITY_*`` variables (strings, with no
+    ``=`` or NUL in a name and no NUL in a value), ``files`` an object mapping arguments to
+    four integers, ``ticket`` a ticket's name; strings hold no NUL and can be encoded as file
+    names. No other field is accepted.
+    """
+    protocol, version = req.get("protocol"), req.get("version")
+    if type(protocol) is not int or protocol != PROTOCOL or version != __version__:
+        raise _Refusal(f"this server is printability {__version__} (protocol {PROTOCOL})")
+    op = req.get("op")
+    if not isinstance(op, str) or op not in _FIELDS:
+        raise _Refusal(f"malformed request: expected a run, status or stop request, not op "
+                       f"{_show(op)}")
+    extra = sorted(set(req) - _FIELDS[op])
+    if extra:
+        raise _Refusal(f"malformed request: unexpected field {_show(extra[0])} in a {op} "
+                       "request")
+    if op != "run":
+        return op
+    missing = sorted(_FIELDS[op] - set(req))
+    if missing:
+        raise _Refusal(f"malformed request: a run needs the field {_show(missing[0])}")
+    argv = req["argv"]
+    _collection(argv, list, "argv")
+    for i, arg in enumerate(argv):
+        _text(arg, f"argv[{i}]")
+    cwd = _text(req["cwd"], "cwd")
+    if not os.path.isabs(cwd):
+        raise _Refusal(f"malformed request: cwd {_show(cwd)} is not an absolute path")
+    env = req["env"]
+    _collection(env, dict, "env")
+    for key, value in env.items():
+        if not key or "=" in key or "\0" in key or not forwarded(key):
+            raise _Refusal(f"malformed request: env name {_show(key)} is not a SLIC3R_ or "
+                           "PRINTABILITY_ variable name (no '=' nor NUL)")
+        _text(key, "env name")
+        _text(value, f"env[{_show(key)}]")
+    files = req["files"]
+    _collection(files, dict, "files")
+    for arg, ident in files.items():
+        if arg not in argv:
+            raise _Refusal(f"malformed request: files names {_show(arg)}, not an argument")
+        if not (isinstance(ident, list) and len(ident) == 4
+                and all(type(n) is int and n >= 0 for n in ident)):
+            raise _Refusal(f"malformed request: files[{_show(arg)}] must be four integers "
+                           "(device, inode, size, time)")
+    ticket = req["ticket"]
+    if not isinstance(ticket, str) or not _TICKET.match(ticket):
+        raise _Refusal(f"malformed request: ticket {_show(ticket)} is not a ticket's name")
+    if argv[:1] != ["postprocess"]:
+        raise _Refusal("this server only runs postprocess")
+    return op
+
+
+# --- the write gate ---------------------------------------------------------------------
+
+_CACHE_SUFFIXES = (".nbi", ".nbc")  # numba's cache: written during a run, not its output
+_gate: _WriteGate | None = None
+_hooked = False
+
+
+class _WriteGate:
+    """While a run is on, its thread's first ``os.replace``/``os.rename`` (numba's cache
+    files aside) must first remove the client's ticket: removed, the run writes; already
+    gone, or the client hung up, the rename fails (``ECANCELED``) and the command reports
+    its file unchanged. The check is an audit hook (``sys.addaudithook``): every rename of
+    the thread passes it, however the code reaches ``os.replace``."""
+
+    def __init__(self, ticket: str, client_left: Callable[[], bool]):
+        self.ticket = ticket
+        self.client_left = client_left
+        self.thread = threading.get_ident()
+        self.owned = False  # the ticket was ours: the run wrote
+        self.refused = False  # a write was refused: the client had stopped waiting
+
+    def check(self) -> None:
+        if self.owned:
+            return
+        if not self.refused:
+            if self.client_left():
+                take_ticket(self.ticket)  # nobody to decide any more: clean it up
+            elif take_ticket(self.ticket):
+                self.owned = True
+                return
+            self.refused = True
+        raise OSError(errno.ECANCELED, "the client stopped waiting for the server")
+
+    @contextlib.contextmanager
+    def active(self):
+        global _gate
+        _install_hook()
+        _gate = self
+        try:
+            yield self
+        finally:
+            _gate = None
+
+
+def _audit(event: str, args: tuple) -> None:
+    if event != "os.rename":
+        return
+    gate = _gate
+    if gate is None or gate.thread != threading.get_ident():
+        return
+    try:
+        if os.fsdecode(args[1]).endswith(_CACHE_SUFFIXES):
+            return
+    except (TypeError, IndexError):
+        pass
+    gate.check()
+
+
+def _install_hook() -> None:
+    """Add :func:`_audit` once per process (an audit hook cannot be removed; outside a run
+    it returns at once)."""
+    global _hooked
+    if not _hooked:
+        sys.addaudithook(_audit)
+        _hooked = True
+
+
+def _sweep_tickets(folder: str) -> None:
+    """Remove the tickets older than a day in ``folder`` (a client killed before its server
+    read the request leaves one)."""
+    limit = time.time() - _TICKET_AGE
+    with contextlib.suppress(OSError), os.scandir(folder) as entries:
+        for e in entries:
+            if _TICKET.match(e.name):
+                with contextlib.suppress(OSError):
+                    if e.stat(follow_symlinks=False).st_mtime < limit:
+                        os.unlink(e.path)
 
 
 def _listening(address: str) -> bool:
@@ -212,6 +417,186 @@ def _bind(address: str) -> socket.socket:
     return sock
 
 
+# --- connections ------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class _Job:
+    """A request handed from its connection's thread to the serving thread."""
+
+    op: str
+    req: dict
+    ticket: str = ""
+    done: threading.Event = field(default_factory=threading.Event)
+    reply: dict | None = None
+    left: bool = False  # the client hung up while waiting
+    wrote: bool = False  # the run took the ticket (its files are written)
+    refused: bool = False  # the run's write was refused: the client had taken the ticket
+
+    def finish(self, reply: dict) -> None:
+        if not self.done.is_set():
+            self.reply = reply
+            self.done.set()
+
+
+_STOPPING = {"ok": False, "reason": "the server is stopping"}
+
+
+def _printable(argv: list[str]) -> str:
+    """A command line for the log, on one line whatever its arguments hold."""
+    return " ".join(a if a.isprintable() else repr(a) for a in argv)
+
+
+class _Clients:
+    """The listening socket's thread and one thread per connection: they read and check
+    requests, answer status requests and refusals, and queue the rest (:attr:`jobs`, with
+    the log lines they write, which the serving thread prints: during a run its standard
+    streams are the run's)."""
+
+    def __init__(self, sock: socket.socket, ticket_dir: str, request_timeout: float):
+        self.sock = sock
+        self.ticket_dir = ticket_dir
+        self.request_timeout = request_timeout
+        self.jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self.lock = threading.Lock()
+        self.stopping = False
+        self.active = 0
+        self.last_seen = time.monotonic()
+        self.thread = threading.Thread(target=self._accept_loop, name="printability-accept",
+                                       daemon=True)
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def stop(self) -> None:
+        """Stop taking connections; queued requests are declined by the caller."""
+        with self.lock:
+            self.stopping = True
+        if self.thread.is_alive():
+            self.thread.join(5.0)
+
+    def log(self, msg: str) -> None:
+        self.jobs.put(msg)
+
+    def idle_for(self) -> float | None:
+        """Seconds since the last connection ended, or ``None`` while one is open."""
+        with self.lock:
+            return None if self.active else time.monotonic() - self.last_seen
+
+    def _accept_loop(self) -> None:
+        self.sock.settimeout(0.5)  # to see `stopping`
+        while not self.stopping:
+            try:
+                conn, _ = self.sock.accept()
+            except TimeoutError:
+                continue
+            except OSError as exc:
+                if self.stopping:
+                    return
+                self.log(f"cannot accept a connection: {exc.strerror or exc}")
+                time.sleep(0.1)  # out of file descriptors, say: let some close
+                continue
+            with self.lock:
+                self.last_seen = time.monotonic()
+                busy = self.active >= _MAX_CLIENTS
+                if not busy:
+                    self.active += 1
+            if busy:
+                self._refuse(conn, f"busy: {_MAX_CLIENTS} connections open")
+                conn.close()
+                continue
+            try:
+                threading.Thread(target=self._client, args=(conn,), daemon=True).start()
+            except RuntimeError:  # no thread to be had
+                self._done()
+                self._refuse(conn, "busy: cannot start a thread")
+                conn.close()
+
+    def _done(self) -> None:
+        with self.lock:
+            self.active -= 1
+            self.last_seen = time.monotonic()
+
+    def _client(self, conn: socket.socket) -> None:
+        try:
+            with conn:
+                self._converse(conn)
+        except Exception:  # a bug: keep serving the others
+            self.log("error while serving a client:\n" + traceback.format_exc().rstrip())
+        finally:
+            self._done()
+
+    def _converse(self, conn: socket.socket) -> None:
+        deadline = time.monotonic() + self.request_timeout
+        try:
+            req = read_message(conn, limit=_MAX_REQUEST, deadline=deadline)
+        except MessageError as exc:
+            self._refuse(conn, f"malformed request: {exc}")
+            return
+        except TimeoutError:
+            self._refuse(conn, f"no whole request within {self.request_timeout:g} s")
+            return
+        except OSError:  # the connection broke: nobody to answer
+            return
+        if req is None:  # connected and closed (a probe)
+            return
+        try:
+            op = check_request(req)
+        except _Refusal as exc:
+            self._refuse(conn, str(exc))
+            return
+        if op == "status":
+            self._reply(conn, {"ok": True, "pid": os.getpid(), "version": __version__,
+                               "python": sys.executable})
+            return
+        job = _Job(op, req, os.path.join(self.ticket_dir, req["ticket"]) if op == "run" else "")
+        with self.lock:
+            queued = not self.stopping
+            if queued:
+                self.jobs.put(job)
+        if not queued:
+            self._reply(conn, _STOPPING)
+            return
+        if self._wait(conn, job):
+            self._reply(conn, job.reply)
+
+    def _wait(self, conn: socket.socket, job: _Job) -> bool:
+        """Wait for ``job``, sending a heartbeat a second; false when the client left."""
+        while not job.done.wait(_HEARTBEAT):
+            try:
+                if _hung_up(conn):
+                    job.left = True
+                    return False
+                conn.settimeout(_SEND_TIMEOUT)
+                conn.sendall(b"\0\0\0\0")
+            except OSError:
+                job.left = True
+                return False
+        return True
+
+    def _reply(self, conn: socket.socket, reply: dict | None) -> None:
+        if reply is None:
+            return
+        with contextlib.suppress(OSError):  # the client gave up: nothing to tell it
+            conn.settimeout(_SEND_TIMEOUT)
+            send_message(conn, reply)
+
+    def _refuse(self, conn: socket.socket, reason: str) -> None:
+        self.log(f"refused a request: {reason}")
+        with contextlib.suppress(OSError):
+            conn.settimeout(1.0)
+            send_message(conn, {"ok": False, "reason": reason})
+
+
+def _hung_up(conn: socket.socket) -> bool:
+    """Whether the client closed its end (or sent more than its request: not a client of
+    this protocol). It sends nothing after its request, so anything readable says so."""
+    poller = select.poll()
+    poller.register(conn, select.POLLIN)
+    return bool(poller.poll(0))
+
+
+# --- the server -------------------------------------------------------------------------
+
 def serve(
     *,
     address: str | None = None,
@@ -220,6 +605,7 @@ def serve(
     watch: Iterable[Path] | None = None,
     on_event: Callable[[str], None] | None = None,
     retain_memory: bool = False,
+    request_timeout: float = _REQUEST_TIMEOUT,
 ) -> ServeResult:
     """Serve post-processing requests until stopped, idle or stale.
 
@@ -228,19 +614,22 @@ def serve(
     address
         The socket path (default: :func:`printability.server_client.default_address`).
     idle_timeout
-        Stop after this many seconds without a request (``None``: never).
+        Stop after this many seconds without a connection (``None``: never).
     warm
         Load the plug-in's compiled kernels before the first request
         (:func:`printability.warmup.warm_up`: seconds when cached, about a
-        minute right after an install).
+        minute right after an install); requests arriving meanwhile wait.
     watch
         Directories whose ``.py`` files are compared before each run (default:
         the installed packages'); any change stops the server.
     on_event
-        Called with a one-line message on start, per request and on stop.
+        Called with a one-line message on start, per request, per refused
+        request and on stop (from the calling thread only, never during a run).
     retain_memory
         Keep freed memory for the next request (:func:`retain_freed_memory`):
         process-wide, so for a process that only serves.
+    request_timeout
+        Seconds a client has, once connected, to send its whole request.
 
     Raises
     ------
@@ -258,7 +647,11 @@ def serve(
     roots = list(watch) if watch is not None else _package_roots()
     stamp = source_stamp(roots)
     sock = _bind(address)
+    folder = os.path.abspath(os.path.dirname(address) or ".")
+    _sweep_tickets(folder)
+    clients = _Clients(sock, folder, request_timeout)
     requests, reason = 0, "stopped"
+    job: _Job | None = None
 
     terminated = []
 
@@ -272,6 +665,7 @@ def serve(
     if _in_main_thread():
         previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
+        clients.start()
         say(f"listening on {address} (pid {os.getpid()})")
         if retain_memory and not retain_freed_memory():
             say("the C library keeps its own memory policy (not glibc)")
@@ -280,67 +674,111 @@ def serve(
 
             res = warm_up()
             say(f"kernels loaded in {res.seconds:.1f} s")
-        sock.settimeout(idle_timeout)
         while True:
-            try:
-                conn, _ = sock.accept()
-            except TimeoutError:
+            job = None
+            item = _next(clients, idle_timeout)
+            if item is None:
                 reason = f"idle for {idle_timeout:g} s"
                 break
-            with conn:
-                conn.settimeout(_REQUEST_TIMEOUT)
-                try:
-                    req = recv_message(conn)
-                except OSError:
-                    continue
-                if req is None:
-                    continue
-                conn.settimeout(None)
-                reply, stop = _handle(req, stamp, roots)
-                if terminated:
-                    reply, stop = {"ok": False, "reason": "the server is stopping"}, "terminated"
-                if reply.get("ok") and "rc" in reply:
-                    requests += 1
-                    say(f"request {requests}: {' '.join(req['argv'])} -> exit {reply['rc']}")
-                with contextlib.suppress(OSError):  # the client gave up: nothing to tell it
-                    send_message(conn, reply)
-                if stop:
-                    reason = stop
-                    break
+            if isinstance(item, str):
+                say(item)
+                continue
+            job = item
+            if job.op == "stop":
+                job.finish({"ok": True})
+                reason = "asked to stop"
+                break
+            try:
+                reply, stop = _handle(job, stamp, roots, say)
+            except Exception:  # a bug: say so, decline, keep serving
+                say("error while running a request:\n" + traceback.format_exc().rstrip())
+                reply, stop = {"ok": False, "reason": "the server failed (see its log)"}, None
+            if terminated:
+                stop = "terminated"
+                if not job.wrote:  # done and written: the client takes the run's reply
+                    reply = _STOPPING
+            if reply is not None and "rc" in reply:
+                requests += 1
+                note = "; nothing written: the client had stopped waiting" if job.refused else ""
+                say(f"request {requests}: {_printable(job.req['argv'])} -> exit "
+                    f"{reply['rc']}{note}")
+            job.finish(reply or _STOPPING)
+            if stop:
+                reason = stop
+                break
     except KeyboardInterrupt:
         reason = "terminated" if terminated else "interrupted"
     finally:
+        clients.stop()
         sock.close()
         with contextlib.suppress(OSError):
             os.unlink(address)
+        if job is not None:
+            job.finish(_STOPPING)
+        for item in _drain(clients.jobs):
+            if isinstance(item, str):
+                say(item)
+            else:
+                item.finish(_STOPPING)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     say(f"stopped ({reason}) after {requests} requests")
     return ServeResult(requests, reason, time.perf_counter() - t0)
 
 
+def _next(clients: _Clients, idle_timeout: float | None) -> _Job | str | None:
+    """The next queued job or log line; ``None`` once idle for ``idle_timeout`` s."""
+    while True:
+        wait = None
+        if idle_timeout is not None:
+            idle = clients.idle_for()
+            if idle is not None and idle >= idle_timeout:
+                return None
+            wait = 0.1 if idle is None else max(idle_timeout - idle, 0.01)
+        try:
+            return clients.jobs.get(timeout=wait)
+        except queue.Empty:
+            continue
+
+
+def _drain(jobs: queue.SimpleQueue) -> list:
+    out = []
+    while True:
+        try:
+            out.append(jobs.get_nowait())
+        except queue.Empty:
+            return out
+
+
 def _in_main_thread() -> bool:
     """Signal handlers can only be set from the main thread (tests serve from others)."""
-    import threading
-
     return threading.current_thread() is threading.main_thread()
 
 
-def _handle(req: dict, stamp: tuple, roots: list[Path]) -> tuple[dict, str | None]:
-    """The reply to one request, and why to stop afterwards (``None``: keep serving)."""
-    if req.get("protocol") != PROTOCOL or req.get("version") != __version__:
-        return {"ok": False, "reason": f"this server is printability {__version__} "
-                                       f"(protocol {PROTOCOL})"}, None
-    op = req.get("op")
-    if op == "status":
-        return {"ok": True, "pid": os.getpid(), "version": __version__,
-                "python": sys.executable}, None
-    if op == "stop":
-        return {"ok": True}, "asked to stop"
-    if op != "run" or not _valid_run(req):
-        return {"ok": False, "reason": "expected a run, status or stop request"}, None
-    if req["argv"][:1] != ["postprocess"]:
-        return {"ok": False, "reason": "this server only runs postprocess"}, None
+def _handle(job: _Job, stamp: tuple, roots: list[Path],
+            say: Callable[[str], None]) -> tuple[dict | None, str | None]:
+    """Run ``job`` (a checked run request): its reply (``None``: its client left), and why to
+    stop afterwards (``None``: keep serving)."""
+    req = job.req
+    if job.left:
+        take_ticket(job.ticket)
+        say(f"declined {_printable(req['argv'])}: the client left before its turn")
+        return None, None
+    reply, stop = _decline(req, job.ticket, stamp, roots)
+    if reply is not None:
+        say(f"declined {_printable(req['argv'])}: {reply['reason']}")
+        return reply, stop
+    with _WriteGate(job.ticket, lambda: job.left).active() as gate:
+        rc, out, err = _run_command(req["argv"], req["cwd"], req["env"])
+    job.wrote, job.refused = gate.owned, gate.refused
+    return {"ok": True, "rc": rc, "stdout": out, "stderr": err}, None
+
+
+def _decline(req: dict, ticket: str, stamp: tuple,
+             roots: list[Path]) -> tuple[dict | None, str | None]:
+    """Why a checked run request is not run here (``None``: it is), and why to stop."""
+    if not os.path.exists(ticket):  # the client took it back (or sees another folder)
+        return {"ok": False, "reason": "the ticket is gone: the client stopped waiting"}, None
     if not os.path.isdir(req["cwd"]):
         return {"ok": False, "reason": f"{req['cwd']}: no such directory here"}, None
     for arg, ident in req["files"].items():
@@ -349,8 +787,7 @@ def _handle(req: dict, stamp: tuple, roots: list[Path]) -> tuple[dict, str | Non
     if source_stamp(roots) != stamp:
         return ({"ok": False, "reason": "the installed source changed since the server "
                                         "started"}, "the installed source changed")
-    rc, out, err = _run_command(req["argv"], req["cwd"], req["env"])
-    return {"ok": True, "rc": rc, "stdout": out, "stderr": err}, None
+    return None, None
 
 
 def server_status(address: str | None = None) -> dict | None:

@@ -171,7 +171,7 @@ def test_source_stamp_sees_every_source_file_and_no_cache(tmp_path):
 def test_other_version_is_declined(server):
     reply = call(server.address, {"op": "status", "version": "0.0.0-other"}, timeout=5)
     assert reply == {"ok": False, "reason": f"this server is printability {__version__} "
-                                           f"(protocol 1)"}
+                                           f"(protocol 2)"}
     assert server_status(server.address)["pid"] == os.getpid()
 
 
@@ -298,13 +298,16 @@ def test_cli_postprocess_is_served_too(server, prusa_short, tmp_path):
     assert already_processed(path.read_bytes())
 
 
-def test_server_declines_files_it_does_not_see_as_the_caller_does(server, prusa_short,
-                                                                  tmp_path):
+def test_server_declines_files_it_does_not_see_as_the_caller_does(server, private,
+                                                                  prusa_short, tmp_path):
     path = tmp_path / "part.gcode"
     path.write_bytes(prusa_short.read_bytes())
     files = file_identities(["postprocess", str(path), "--nozzle", ELLIPSE], str(tmp_path))
     assert list(files) == [str(path)]
-    base = {"op": "run", "argv": ["postprocess", str(path)], "cwd": str(tmp_path), "env": {}}
+    ticket = "ticket-" + "0" * 32
+    (private / ticket).touch()
+    base = {"op": "run", "argv": ["postprocess", str(path)], "cwd": str(tmp_path), "env": {},
+            "ticket": ticket}
     # another inode under the same name (a sandbox's own /tmp, say): the caller runs it
     other = dict(files)
     other[str(path)] = [*files[str(path)][:1], files[str(path)][1] + 1, *files[str(path)][2:]]
