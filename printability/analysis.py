@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import multiprocessing.context
+import os
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -431,12 +432,36 @@ def _rank(per_nozzle: list[NozzleAnalysis], machine: Machine) -> list[NozzleAnal
 
 def _process_context() -> multiprocessing.context.BaseContext:
     """Fork server where there is one: the caller may have threads (a progress bar's
-    refresher, a Dask client) that a plain fork would copy mid-lock."""
+    refresher, a Dask client) that a plain fork would copy mid-lock.
+
+    The fork server is a new interpreter started with ``-c``, which puts the working
+    directory first on ``sys.path``: a folder named ``printability`` there would be imported
+    instead of this package (an editable install finds it last). It is started here with
+    ``PYTHONSAFEPATH=1``, which leaves the working directory out; the workers it forks
+    inherit its ``sys.path``. (Spawned children get the parent's ``sys.path`` back before
+    they import anything of ours.)"""
     if "forkserver" in multiprocessing.get_all_start_methods():
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload(["printability.analysis", "printability.mmc.exact"])
+        _start_forkserver_safe_path()
         return ctx
     return multiprocessing.get_context()
+
+
+def _start_forkserver_safe_path() -> None:
+    """Start the fork server (if it is not running) with ``PYTHONSAFEPATH=1`` in its
+    environment, and the variable back as it was in ours."""
+    from multiprocessing import forkserver
+
+    saved = os.environ.get("PYTHONSAFEPATH")
+    os.environ["PYTHONSAFEPATH"] = "1"
+    try:
+        forkserver.ensure_running()
+    finally:
+        if saved is None:
+            del os.environ["PYTHONSAFEPATH"]
+        else:
+            os.environ["PYTHONSAFEPATH"] = saved
 
 
 def _map(tasks: list[tuple], *, settings: Settings, scheduler: str | None,

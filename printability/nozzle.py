@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +36,7 @@ import shapely.affinity
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
-from printability.errors import FileFormatError, InputError, PrintabilityOSError
+from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
 from printability.geometry import polygons_of, rotation_matrix
 from printability.options import NOZZLE_KINDS
 
@@ -280,16 +281,18 @@ _ALLOWED = {
 
 def _number(spec: str, key: str, text: str) -> float:
     if not _NUMBER.match(text.strip()):
-        raise InputError(f"nozzle spec {spec!r}: {key}= expects a number; found {text!r}")
+        raise InputError(f"nozzle spec {excerpt(spec)}: {key}= expects a number; "
+                         f"found {excerpt(text)}")
     value = float(text)
     if not math.isfinite(value):
-        raise InputError(f"nozzle spec {spec!r}: {key}= must be finite; found {text!r}")
+        raise InputError(f"nozzle spec {excerpt(spec)}: {key}= must be finite; "
+                         f"found {excerpt(text)}")
     if key in ("angle", "rot") and abs(value) > 3600:
-        raise InputError(f"nozzle spec {spec!r}: {key}= expects an angle within ±3600 degrees; "
-                         f"found {text!r}")
+        raise InputError(f"nozzle spec {excerpt(spec)}: {key}= expects an angle within ±3600 "
+                         f"degrees; found {excerpt(text)}")
     if key in ("x", "y") and abs(value) > NOZZLE_SIZE_RANGE[1]:
-        raise InputError(f"nozzle spec {spec!r}: {key}= expects an offset within "
-                         f"±{NOZZLE_SIZE_RANGE[1]:g} mm; found {text!r}")
+        raise InputError(f"nozzle spec {excerpt(spec)}: {key}= expects an offset within "
+                         f"±{NOZZLE_SIZE_RANGE[1]:g} mm; found {excerpt(text)}")
     return value
 
 
@@ -302,19 +305,31 @@ def _positive(spec: str, key: str, value: float) -> float:
     lo, hi = NOZZLE_SIZE_RANGE
     if value <= 0:
         raise InputError(
-            f"nozzle spec {spec!r}: {key} must be a positive length in mm; found {value:g}"
+            f"nozzle spec {excerpt(spec)}: {key} must be a positive length in mm; found {value:g}"
         )
     if not (lo <= value <= hi) and key != "scale":
-        raise InputError(f"nozzle spec {spec!r}: {key} must be between {lo:g} and {hi:g} mm; "
-                         f"found {value:g}")
+        raise InputError(f"nozzle spec {excerpt(spec)}: {key} must be between {lo:g} and "
+                         f"{hi:g} mm; found {value:g}")
     return value
+
+
+#: Largest nozzle outline file read (.wkt, .txt): an orifice has tens of vertices, not millions.
+MAX_POLYGON_FILE = 16 << 20
 
 
 def _read_polygon_file(path: Path) -> Polygon:
     """Read a polygon outline: .wkt, .txt/.csv/.xy ("x y" per line), or .svg."""
-    if not path.is_file():
+    from printability.sources._common import MAX_COORDINATE, check_coordinates
+
+    if not path.exists():
         raise PrintabilityOSError(f"{path}: nozzle polygon file not found")
+    if not path.is_file():
+        raise PrintabilityOSError(f"{path}: not a regular file (expected a nozzle outline: "
+                                  ".svg, .wkt or 'x y' lines)")
     suffix = path.suffix.lower()
+    if suffix != ".svg" and path.stat().st_size > MAX_POLYGON_FILE:
+        raise FileFormatError(path, f"{path.stat().st_size / 2**20:.0f} MiB; a nozzle outline "
+                              f"file is expected to be at most {MAX_POLYGON_FILE >> 20} MiB")
     if suffix == ".svg":
         # The SVG reader lives with the other layer sources.
         from printability.sources.svg import load_svg_region
@@ -327,9 +342,13 @@ def _read_polygon_file(path: Path) -> Polygon:
             raise PrintabilityOSError(f"{path}: cannot read nozzle polygon file ({exc})") from None
         if suffix == ".wkt":
             try:
-                geom = shapely.from_wkt(text.strip())
+                with warnings.catch_warnings():  # GEOS warns of "nan": checked below
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    geom = shapely.from_wkt(text.strip())
             except shapely.errors.GEOSException as exc:
-                raise FileFormatError(path, f"expected a WKT polygon; {exc}") from None
+                raise FileFormatError(
+                    path, f"expected a WKT polygon ({excerpt(str(exc), 120)})") from None
+            check_coordinates(path, shapely.get_coordinates(geom))
         else:
             pts = []
             for no, line in enumerate(text.splitlines(), 1):
@@ -338,9 +357,14 @@ def _read_polygon_file(path: Path) -> Polygon:
                     continue
                 fields = line.replace(",", " ").split()
                 if len(fields) != 2 or not all(_NUMBER.match(f) for f in fields):
-                    raise FileFormatError(path, f"expected two numbers 'x y'; found {line!r}",
-                                          line=no)
-                pts.append((float(fields[0]), float(fields[1])))
+                    raise FileFormatError(
+                        path, f"expected two numbers 'x y'; found {excerpt(line)}", line=no)
+                x, y = float(fields[0]), float(fields[1])
+                if not (abs(x) <= MAX_COORDINATE and abs(y) <= MAX_COORDINATE):
+                    raise FileFormatError(
+                        path, f"expected finite numbers up to {MAX_COORDINATE:g}; found "
+                        f"{excerpt(line)}", line=no)
+                pts.append((x, y))
             if len(pts) < 3:
                 raise FileFormatError(path, f"expected at least 3 vertices; found {len(pts)}")
             geom = Polygon(pts)
@@ -363,14 +387,15 @@ def _parse_part(part: str, spec: str, base_dir: Path | None) -> tuple[Footprint,
         key, eq, value = item.partition("=")
         key = key.strip().lower()
         if not eq:
-            raise InputError(f"nozzle spec {spec!r}: expected key=value; found {item!r}")
+            raise InputError(f"nozzle spec {excerpt(spec)}: expected key=value; "
+                             f"found {excerpt(item)}")
         if key not in _ALLOWED[kind]:
             raise InputError(
-                f"nozzle spec {spec!r}: unknown parameter {key!r} for a {kind}; expected one "
-                f"of: {', '.join(sorted(_ALLOWED[kind]))}"
+                f"nozzle spec {excerpt(spec)}: unknown parameter {excerpt(key)} for a {kind}; "
+                f"expected one of: {', '.join(sorted(_ALLOWED[kind]))}"
             )
         if key in params:
-            raise InputError(f"nozzle spec {spec!r}: parameter {key!r} given twice")
+            raise InputError(f"nozzle spec {excerpt(spec)}: parameter {excerpt(key)} given twice")
         params[key] = value.strip()
 
     num = {k: _number(spec, k, v) for k, v in params.items()
@@ -381,54 +406,60 @@ def _parse_part(part: str, spec: str, base_dir: Path | None) -> tuple[Footprint,
 
     if kind == "circle":
         if ("d" in num) == ("r" in num):
-            raise InputError(f"nozzle spec {spec!r}: a circle needs exactly one of d= or r=")
+            raise InputError(f"nozzle spec {excerpt(spec)}: a circle needs exactly one of d= or r=")
         r = num["d"] / 2 if "d" in num else num["r"]
         _positive(spec, "the diameter", 2 * r)
         return Footprint("circle", r, r, center, 0.0), angle
     if kind == "ellipse":
         for k in ("major", "minor"):
             if k not in num:
-                raise InputError(f"nozzle spec {spec!r}: an ellipse needs {k}= (full axis, mm)")
+                raise InputError(f"nozzle spec {excerpt(spec)}: an ellipse needs {k}= "
+                                 "(full axis, mm)")
             _positive(spec, k, num[k])
         if num["minor"] > num["major"]:
             raise InputError(
-                f"nozzle spec {spec!r}: minor ({num['minor']:g}) is larger than major "
+                f"nozzle spec {excerpt(spec)}: minor ({num['minor']:g}) is larger than major "
                 f"({num['major']:g}); swap them or use rot=90"
             )
         return Footprint("ellipse", num["major"] / 2, num["minor"] / 2, center, rot), angle
     if kind == "rect":
         for k in ("w", "h"):
             if k not in num:
-                raise InputError(f"nozzle spec {spec!r}: a rectangle needs {k}= (mm)")
+                raise InputError(f"nozzle spec {excerpt(spec)}: a rectangle needs {k}= (mm)")
             _positive(spec, k, num[k])
         return Footprint("rect", num["w"] / 2, num["h"] / 2, center, rot), angle
 
     # polygon
     if ("file" in params) == ("pts" in params):
-        raise InputError(f"nozzle spec {spec!r}: a polygon needs a FILE or pts=x y;x y;...")
+        raise InputError(f"nozzle spec {excerpt(spec)}: a polygon needs a FILE or pts=x y;x y;...")
     if "file" in params:
         path = Path(params["file"]).expanduser()
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
         poly = _read_polygon_file(path)
     else:
+        from printability.sources._common import MAX_COORDINATE
+
         pts = []
         for vertex in params["pts"].split(";"):
             fields = vertex.split()
             if len(fields) != 2:
-                raise InputError(f"nozzle spec {spec!r}: pts= expects 'x y' pairs separated by "
-                                 f"';'; found {vertex!r}")
+                raise InputError(f"nozzle spec {excerpt(spec)}: pts= expects 'x y' pairs "
+                                 f"separated by ';'; found {excerpt(vertex)}")
             pts.append((_number(spec, "pts", fields[0]), _number(spec, "pts", fields[1])))
+            if not all(abs(v) <= MAX_COORDINATE for v in pts[-1]):
+                raise InputError(f"nozzle spec {excerpt(spec)}: pts= expects finite numbers up "
+                                 f"to {MAX_COORDINATE:g}; found {excerpt(vertex)}")
         if len(pts) < 3:
-            raise InputError(f"nozzle spec {spec!r}: a polygon needs at least 3 vertices")
+            raise InputError(f"nozzle spec {excerpt(spec)}: a polygon needs at least 3 vertices")
         polys = polygons_of(shapely.make_valid(Polygon(pts)))
         if not polys:
-            raise InputError(f"nozzle spec {spec!r}: the polygon has no area")
+            raise InputError(f"nozzle spec {excerpt(spec)}: the polygon has no area")
         poly = max(polys, key=lambda p: p.area)
     origin = params.get("origin", "file").lower()
     if origin not in ("file", "centroid"):
-        raise InputError(f"nozzle spec {spec!r}: origin= expects 'file' or 'centroid'; "
-                         f"found {origin!r}")
+        raise InputError(f"nozzle spec {excerpt(spec)}: origin= expects 'file' or 'centroid'; "
+                         f"found {excerpt(origin)}")
     if origin == "centroid":
         c = poly.centroid
         poly = shapely.affinity.translate(poly, -c.x, -c.y)
@@ -440,7 +471,12 @@ def _parse_part(part: str, spec: str, base_dir: Path | None) -> tuple[Footprint,
     if poly.interiors:
         poly = Polygon(poly.exterior)  # an orifice with a hole is treated as its outline
     if poly.area <= 0:
-        raise InputError(f"nozzle spec {spec!r}: the polygon has zero area")
+        raise InputError(f"nozzle spec {excerpt(spec)}: the polygon has zero area")
+    reach = max(map(abs, poly.bounds))
+    if not reach <= NOZZLE_SIZE_RANGE[1]:
+        raise InputError(f"nozzle spec {excerpt(spec)}: the polygon reaches {reach:g} mm from "
+                         f"the rotation axis; expected within ±{NOZZLE_SIZE_RANGE[1]:g} mm "
+                         "(scale= converts other units)")
     shell = shapely.geometry.polygon.orient(poly, 1.0).exterior.coords[:-1]
     return Footprint("polygon", 0.0, 0.0, (0.0, 0.0), 0.0, tuple(map(tuple, shell))), angle
 
@@ -475,7 +511,7 @@ def parse_nozzle(spec: str | Nozzle, *, base_dir: str | Path | None = None) -> N
         fp, angle = _parse_part(part.strip(), text, base)
         if angle is not None:
             if mount is not None and not math.isclose(mount, angle):
-                raise InputError(f"nozzle spec {text!r}: conflicting angle= values "
+                raise InputError(f"nozzle spec {excerpt(text)}: conflicting angle= values "
                                  f"({mount:g} and {angle:g})")
             mount = angle
         footprints.append(fp)

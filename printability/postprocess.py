@@ -78,6 +78,7 @@ from printability.errors import (
     NozzleTooLargeError,
     PrintabilityOSError,
     ResourceError,
+    excerpt,
 )
 from printability.machine import Machine, parse_machine
 from printability.motion.orientation import (
@@ -108,7 +109,8 @@ def _check_range(name: str, value: float, lo: float, hi: float, unit: str) -> No
     if isinstance(value, bool) or not isinstance(value, (int, float)) or \
             not (lo <= value <= hi):
         unit = " " + unit if unit else ""
-        raise InputError(f"{name} expects a number from {lo:g} to {hi:g}{unit}; found {value!r}")
+        raise InputError(f"{name} expects a number from {lo:g} to {hi:g}{unit}; "
+                         f"found {excerpt(str(value))}")
 
 
 def _check_output_name(name: str) -> None:
@@ -265,7 +267,7 @@ def _env_float(env: Mapping[str, str], key: str) -> float | None:
     try:
         value = float(first)
     except ValueError:
-        raise InputError(f"environment variable {key}={raw!r}: expected a number") from None
+        raise InputError(f"environment variable {key}={excerpt(raw)}: expected a number") from None
     return value
 
 

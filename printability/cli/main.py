@@ -125,9 +125,18 @@ for _info in app.registered_commands:
         _info.cls = _Command
 
 
+#: Characters of an error message shown at most (a message quoting more input than that
+#: would be long to wrap and to read; the places that quote input cut it shorter).
+ERROR_LENGTH = 2000
+
+
 def error_paragraph(exc: BaseException) -> str:
-    """One paragraph, wrapped for a terminal."""
-    text = " ".join(str(exc).split())
+    """One paragraph, wrapped for a terminal; a message over :data:`ERROR_LENGTH`
+    characters is cut and marked, so its cost does not depend on the input."""
+    raw = str(exc)
+    text = " ".join(raw[:4 * ERROR_LENGTH].split())
+    if len(text) > ERROR_LENGTH or len(raw) > 4 * ERROR_LENGTH:
+        text = text[:ERROR_LENGTH] + f" [… message cut at {ERROR_LENGTH} characters]"
     return textwrap.fill(f"printability: error: {text}", width=100)
 
 

@@ -51,7 +51,7 @@ import shapely
 import shapely.affinity
 from shapely.geometry import MultiPolygon, Polygon, box
 
-from printability.errors import FileFormatError, InputError
+from printability.errors import FileFormatError, InputError, excerpt
 from printability.geometry import polygons_of
 from printability.layers import LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
@@ -154,7 +154,7 @@ def _collect(path: Path, obj: Any, where: str, out: list[Polygon], skipped: list
     else:
         raise FileFormatError(
             path, "expected a GeoJSON type (FeatureCollection, Feature, GeometryCollection, "
-            f"Polygon, MultiPolygon...); found type {kind!r}", element=where)
+            f"Polygon, MultiPolygon...); found type {excerpt(str(kind))}", element=where)
 
 
 def _select(
@@ -400,7 +400,8 @@ def load_wkt_layers(
             try:
                 geoms.append(shapely.from_wkt(line.strip()))
             except shapely.errors.GEOSException as exc:
-                raise FileFormatError(p, f"expected a WKT geometry; {exc}", line=no) from None
+                raise FileFormatError(p, f"expected a WKT geometry ({excerpt(str(exc), 120)})",
+                                      line=no) from None
     for g in geoms:
         check_coordinates(p, shapely.get_coordinates(g))
     polys = [q for g in geoms for q in polygons_of(g)]

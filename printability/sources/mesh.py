@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 import shapely
 
-from printability.errors import FileFormatError, InputError, PrintabilityOSError
+from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
 from printability.geometry import as_region
 from printability.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
@@ -248,10 +248,10 @@ def load_mesh(
     if units is not None:
         k = unit_scale(units)
         if file_units and abs(_3MF_UNITS_MM.get(file_units, 1.0) - k) > 1e-12:
-            warnings.append(f"units={units!r} overrides the file's unit {file_units!r}")
+            warnings.append(f"units={units!r} overrides the file's unit {excerpt(file_units)}")
     elif file_units:
         if file_units not in _3MF_UNITS_MM:
-            raise FileFormatError(p, f"unknown 3MF unit {file_units!r}; expected one of "
+            raise FileFormatError(p, f"unknown 3MF unit {excerpt(file_units)}; expected one of "
                                   f"{', '.join(_3MF_UNITS_MM)}", element="model@unit")
         k = _3MF_UNITS_MM[file_units]
     else:

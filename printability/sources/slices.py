@@ -24,10 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from printability.errors import FileFormatError
+from printability.errors import FileFormatError, excerpt
 from printability.layers import LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
+    MAX_COORDINATE,
     apply_fit,
     check_positive,
     multipolygon,
@@ -65,9 +66,11 @@ def _number(path: Path, text: str, no: int, what: str) -> float:
     try:
         v = float(text)
     except ValueError:
-        raise FileFormatError(path, f"expected {what}; found {text.strip()!r}", line=no) from None
+        raise FileFormatError(path, f"expected {what}; found {excerpt(text.strip())}",
+                              line=no) from None
     if not math.isfinite(v):
-        raise FileFormatError(path, f"expected a finite {what}; found {text.strip()!r}", line=no)
+        raise FileFormatError(path, f"expected a finite {what}; found {excerpt(text.strip())}",
+                              line=no)
     return v
 
 
@@ -135,7 +138,7 @@ def load_slice_layers(
             count = int(head)
         except ValueError:
             raise FileFormatError(p, f"expected a point count (an integer) starting a curve; "
-                                  f"found {head!r}", line=i + 1) from None
+                                  f"found {excerpt(head)}", line=i + 1) from None
         if count < 0:
             raise FileFormatError(p, f"expected a non-negative point count; found {count}",
                                   line=i + 1)
@@ -159,14 +162,15 @@ def load_slice_layers(
                         ok = False
                 if not ok:
                     raise FileFormatError(p, f"expected a point 'x y' (two numbers); found "
-                                          f"{ln.strip()!r}", line=start + j + 1) from None
+                                          f"{excerpt(ln.strip())}", line=start + j + 1) from None
             raise
         if count and (pts.ndim != 2 or pts.shape[1] != 2):
             raise FileFormatError(p, "expected one point 'x y' per line", line=start + 1)
-        if count and not np.isfinite(pts).all():
-            bad = int(np.argmax(~np.isfinite(pts).all(axis=1)))
-            raise FileFormatError(p, "expected finite coordinates; found "
-                                  f"{block[bad].strip()!r}", line=start + bad + 1)
+        in_range = np.abs(pts) <= MAX_COORDINATE  # False for nan too
+        if count and not in_range.all():
+            bad = int(np.argmax(~in_range.all(axis=1)))
+            raise FileFormatError(p, f"expected finite coordinates up to {MAX_COORDINATE:g}; found "
+                                  f"{excerpt(block[bad].strip())}", line=start + bad + 1)
         if count >= 3:
             rings.append(pts * k)
         i = start + count
