@@ -35,6 +35,7 @@ import numpy as np
 
 __all__ = [
     "CATEGORIES",
+    "INTERIOR_CATEGORIES",
     "NON_PART_CATEGORIES",
     "CommentInfo",
     "feature_category",
@@ -113,6 +114,14 @@ NON_PART_CATEGORIES = frozenset(
 )
 """Categories whose material is not part of the printed object (or, for ironing,
 adds none): left out of a layer's target region by default."""
+
+INTERIOR_CATEGORIES = frozenset(
+    {"inner_wall", "solid_infill", "sparse_infill", "top_surface", "bottom_surface", "bridge",
+     "gap_fill"}
+)
+"""Categories whose beads' edges are not the part's surface (walls inside the outer one,
+infill, gap fill): such a bead may lie wider than planned inside the part (the outer wall,
+an overhang, an unknown feature lays exactly the planned width)."""
 
 _CATEGORY_OF = {
     # PrusaSlicer / SuperSlicer

@@ -67,6 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from gcode import MF_E_RELATIVE, NON_PART_CATEGORIES, parse_gcode
+from gcode.dialects import INTERIOR_CATEGORIES
 from gcode.flavors import RotaryAxis
 from gcode.printtime import PrintTime, estimate_print_time, format_duration
 from gcode.writer import WriterOptions, format_number, header_lines
@@ -369,6 +370,14 @@ def _part_mask(g) -> np.ndarray:
     return m["is_extrusion"] & part & ~m["wipe"] & (m["layer"] >= 0)
 
 
+def _interior_mask(g, seg_move: np.ndarray) -> np.ndarray:
+    """Per chord, True where its feature's bead edges are not the part's surface
+    (:data:`gcode.dialects.INTERIOR_CATEGORIES`)."""
+    cats = g.feature_category_of_moves()
+    interior = np.array([c in INTERIOR_CATEGORIES for c in cats], dtype=bool)
+    return interior[seg_move] if len(interior) else np.zeros(len(seg_move), dtype=bool)
+
+
 def postprocess_bytes(
     data: bytes,
     *,
@@ -479,6 +488,7 @@ def postprocess_bytes(
     if part_idx.size and not narrow_beads:
         seg_move = part_idx[seg["move"]]  # index into g.moves
         widths = _planned_widths(g, seg, seg_move, float(fd))
+        seg_interior = _interior_mask(g, seg_move)
         seg_layer = moves["layer"][seg_move]
         order = np.argsort(seg_layer, kind="stable")
         bounds = np.searchsorted(seg_layer[order], np.arange(n_layers + 1))
@@ -488,6 +498,7 @@ def postprocess_bytes(
     else:
         seg_move = np.zeros(0, np.int64)
         widths = np.zeros(0)
+        seg_interior = np.zeros(0, dtype=bool)
         order = np.zeros(0, np.int64)
         bounds = np.zeros(n_layers + 1, np.int64)
         batches = iter(())
@@ -519,6 +530,7 @@ def postprocess_bytes(
                                      options=options.orientation, previous=prev,
                                      prepared_target=tgt, chained=chained,
                                      narrow_beads=narrow_beads, fold_pieces=policy == "xy",
+                                     interior=seg_interior[idx],
                                      # the cores are the targets' until the last is built
                                      workers=n_workers if last else 1)
             seg_angle[idx] = plan.angle
@@ -544,8 +556,13 @@ def postprocess_bytes(
         piece_rows = tuple(c[by_chord] for c in cols[:4])
         piece_fold = cols[4][by_chord]
         seg_pieces = PieceMap(np.concatenate(split_found), piece_rows)
+    # an interior bead laid wider than planned keeps the slicer's volume: E follows the
+    # width only where it is narrower (a wider footprint spreads the same bead)
+    with np.errstate(invalid="ignore"):
+        width_for_e = np.where(seg_interior & (seg_width_laid > widths)
+                               & options.orientation.wider_interior, widths, seg_width_laid)
     out, turned_per_layer = rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
-                                    seg_width_laid, seg_pieces, widths, heights, wopts, turns,
+                                    width_for_e, seg_pieces, widths, heights, wopts, turns,
                                     e_policy, nozzle, piece_rows=piece_rows,
                                     piece_fold=piece_fold)
     reports = [LayerReport(**{**r.__dict__, "turned": turned_per_layer.get(r.index, 0)})
