@@ -29,9 +29,13 @@ _NOOP = frozenset({
     "G29", "G10", "G11", "M0", "M1", "M16", "M23", "M24", "M25", "M27", "M28", "M29", "M30",
     "M32", "M33", "M928", "M413", "M163", "M164", "M141", "M191", "M150", "M600",
     # M108 (break a heating wait: the host's cancel sends it raw; the emergency parser acts on
-    # it), M113 (host keepalive interval), M21 (init the SD card), which Marlin all accept
-    "M108", "M113", "M21",
+    # it); Marlin's M113 and M21 are answered in CommandsMixin._run (Klipper takes them as
+    # no-ops here too)
+    "M108",
 })
+_KLIPPER_NOOP = frozenset({"M113", "M21"})
+# Marlin's M113 (HOST_KEEPALIVE_FEATURE) caps the interval at 60 s (gcode/host/M113.cpp)
+_M113_MAX = 60
 _KLIPPER_MACROS = re.compile(r"^[A-Z][A-Z0-9]*_[A-Z0-9_]+\b|^(?:PAUSE|RESUME|CANCEL_PRINT|"
                              r"STATUS|RESTART|FIRMWARE_RESTART|SAVE_CONFIG)\b", re.IGNORECASE)
 
@@ -173,7 +177,22 @@ class CommandsMixin:
             if code != "T0":
                 self._emit(f"echo:{code} Invalid extruder")
             return
-        if code in _NOOP:
+        if code == "M113" and self.fw.name != "klipper":
+            # Marlin: S<s> sets the busy keepalive interval (whole seconds, at most 60; S0
+            # turns it off), without S it says the interval
+            if cmd.has_value("S"):
+                v = float(cmd.words["S"])  # type: ignore[arg-type]
+                s = 0 if math.isnan(v) else int(min(max(v, 0.0), _M113_MAX))
+                self.busy_interval = float(s) if s > 0 else math.inf
+            else:
+                shown = 0 if math.isinf(self.busy_interval) else round(self.busy_interval)
+                self._emit(f"echo:M113 S{shown}")
+            return
+        if code == "M21" and self.fw.name != "klipper":
+            # Marlin with SDSUPPORT and no card in the slot (CardReader::mount)
+            self._emit("echo:No SD card")
+            return
+        if code in _NOOP or (code in _KLIPPER_NOOP and self.fw.name == "klipper"):
             return
         self._unknown(cmd)
 
@@ -235,7 +254,7 @@ class CommandsMixin:
                 ("Z_PROBE", 0), ("LEVELING_DATA", 0), ("BUILD_PERCENT", 0),
                 ("SOFTWARE_POWER", 0), ("TOGGLE_LIGHTS", 0), ("CASE_LIGHT_BRIGHTNESS", 0),
                 ("EMERGENCY_PARSER", 1), ("HOST_ACTION_COMMANDS", 0), ("PROMPT_SUPPORT", 0),
-                ("SDCARD", 0), ("REPEAT", 0), ("SD_WRITE", 0), ("AUTOREPORT_SD_STATUS", 0),
+                ("SDCARD", 1), ("REPEAT", 0), ("SD_WRITE", 0), ("AUTOREPORT_SD_STATUS", 0),
                 ("LONG_FILENAME", 0), ("EXTENDED_M20", 0), ("THERMAL_PROTECTION", 1),
                 ("MOTION_MODES", 0), ("ARCS", 1), ("BABYSTEPPING", 0),
                 ("CHAMBER_TEMPERATURE", 0), ("COOLER_TEMPERATURE", 0), ("MEATPACK", 0),

@@ -144,6 +144,8 @@ class Firmware(LineProtocolMixin, PlannerMixin, CommandsMixin):
         self._keepalive_at = math.inf
         self._keepalive_kind = "busy"
         self._keepalives = 0
+        # the busy keepalive interval (s), M113 S<s> changes it; inf: off
+        self.busy_interval = self.fw.busy_interval
         self._autoreport = 0.0
         self._autoreport_at = math.inf
         self._storm = 0
@@ -250,6 +252,25 @@ class Firmware(LineProtocolMixin, PlannerMixin, CommandsMixin):
             times.append(self._exec_end)
         return min(times) if times else math.inf
 
+    @property
+    def autoreport_interval(self) -> float:
+        """The M155 temperature auto-report interval, s (0: off)."""
+        return self._autoreport
+
+    def idle_report(self) -> bool:
+        """Simulated clock, host silent: the M155 temperature report a board sends while it
+        waits. The simulated clock stands still while the firmware waits for the host, but a
+        host's watchdog runs on the wall clock (OctoPrint, having turned auto-reports on,
+        declares a silent printer dead); the transport calls this every auto-report interval
+        of wall time the host stays silent. The report is said at the simulated now (the
+        clock does not move). Returns whether one was said: auto-reports are on and nothing
+        waits to run (a command blocked or queued moves the simulated clock itself)."""
+        if self.halted or self._autoreport <= 0 or math.isfinite(self._sim_event()) \
+                or self._pending or self._queue or self._active is not None:
+            return False
+        self._emit(self._temp_report())
+        return True
+
     def run_sim(self, *, limit: float = math.inf) -> None:
         """Simulated clock: process everything that needs no new input from the host."""
         while True:
@@ -309,7 +330,7 @@ class Firmware(LineProtocolMixin, PlannerMixin, CommandsMixin):
             if self._keepalive_kind == "busy":
                 self._emit(BUSY)
                 self.stats.busy_sent += 1
-                self._keepalive_at = self.now + self.fw.busy_interval
+                self._keepalive_at = self.now + self.busy_interval
             else:
                 self._emit(self._temp_report(wait=True))
                 self._keepalive_at = self.now + 1.0

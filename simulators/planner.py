@@ -84,7 +84,7 @@ class PlannerMixin:
                     self._blocked_since = self.now
                     temp_wait = self._wait[0] == "time" and len(self._wait) > 2
                     self._keepalive_kind = "temp" if temp_wait else "busy"
-                    self._keepalive_at = self.now + (1.0 if temp_wait else self.fw.busy_interval)
+                    self._keepalive_at = self.now + (1.0 if temp_wait else self.busy_interval)
                 return progressed
             try:
                 self._wait = self._active.send(None)

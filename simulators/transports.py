@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import math
 import os
 import select
 import socket
@@ -67,6 +68,9 @@ class Link:
         self._out_free = 0.0  # when the return wire is free (real clock), s since _t0
         self.disconnected = False
         self.on_record: Callable[[], None] | None = None
+        # simulated clock: the wall time (time.monotonic) of the next M155 report while the
+        # host is silent (Firmware.idle_report); inf while auto-reports are off
+        self._idle_report_at = math.inf
 
     @property
     def real(self) -> bool:
@@ -83,6 +87,19 @@ class Link:
             fw.run_until(max(self._now(), fw.pending_until()))
         else:
             self.firmware.run_sim()
+            self._idle_reports()
+
+    def _idle_reports(self, *, host_spoke: bool = False) -> None:
+        """Simulated clock: M155 reports on the wall clock while the host is silent."""
+        interval = self.firmware.autoreport_interval
+        wall = time.monotonic()
+        if interval <= 0:
+            self._idle_report_at = math.inf
+        elif host_spoke or not math.isfinite(self._idle_report_at):
+            self._idle_report_at = wall + interval
+        elif wall >= self._idle_report_at:
+            self.firmware.idle_report()
+            self._idle_report_at = wall + interval
 
     def connect(self) -> None:
         """A host opened the link: reset and greet."""
@@ -91,6 +108,7 @@ class Link:
             self._held.clear()
             self._stall_until = 0.0
             self._out_free = 0.0
+            self._idle_report_at = math.inf
             self.firmware.connect()
             self._pump()
 
@@ -101,6 +119,8 @@ class Link:
                 return
             self.firmware.receive(data, self._now() if self.real else None)
             self._pump()
+            if not self.real:
+                self._idle_reports(host_spoke=True)
 
     def _take(self) -> None:
         for t, item in self.firmware.take_output_timed():
