@@ -148,3 +148,33 @@ def test_generated_cube_runs_on_klipper_on_the_bed(shared_data, tmp_path, nozzle
     x, y = run.moves["x"], run.moves["y"]
     bx0, bx1, by0, by1 = parse_machine(PROFILE).bed
     assert bx0 <= x.min() and x.max() <= bx1 and by0 <= y.min() and y.max() <= by1
+
+
+def test_every_bundled_ttr_profile_generates_for_klipper(shared_data, tmp_path):
+    """A machine owner switching a bundled T-T-R profile to ``flavor = "klipper"``: what
+    ``generate`` writes runs on Klipper, on that profile's bed, the axis registered by the
+    file itself (``MANUAL_STEPPER … GCODE_AXIS``), with no word Klipper drops."""
+    bundled = Path(__file__).resolve().parents[2] / "printability" / "data" / "machines"
+    for name in ("ttr", "ttr-klipper"):
+        text = (bundled / f"{name}.toml").read_text()
+        text = "\n".join('flavor = "klipper"' if ln.strip().startswith("flavor =") else ln
+                         for ln in text.splitlines())
+        profile = tmp_path / f"{name}-as-klipper.toml"
+        profile.write_text(text + "\n")
+        m = parse_machine(str(profile))
+        assert m.firmware(None).name == "klipper"
+        out = tmp_path / f"{name}.gcode"
+        generate_file(shared_data / "stl" / "CalibrationCube.stl", out, ELLIPSE, str(profile),
+                      layer_height=0.4)
+        a = m.rotary_axis
+        bx0, bx1, by0, by1 = m.bed
+        cfg = printer_cfg(bed=(bx0, bx1, by0, by1), z_max=400.0, rotary_velocity=a.max_speed,
+                          rotary_accel=a.acceleration, rotary_corner_velocity=a.corner_velocity,
+                          extra=START_END_MACROS)
+        run = run_klipper(out.read_bytes(), cfg=cfg, register_axes=False)
+        assert run.completed, (name, run.log[-2000:])
+        assert not run.errors and not run.unknown_commands and not run.ignored_words, \
+            (name, run.errors[:5], run.unknown_commands[:5], run.ignored_words[:5])
+        assert "C" in run.axes and _turns(run) > 0, name
+        x, y = run.moves["x"], run.moves["y"]
+        assert bx0 <= x.min() and x.max() <= bx1 and by0 <= y.min() and y.max() <= by1, name
