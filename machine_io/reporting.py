@@ -9,29 +9,22 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 from machine_io.program import Program
 from machine_io.session import Progress, StreamReport
+from printability.base.files import replace_file
 
 __all__ = ["ReportingMixin"]
 
 
 def _atomic_json(path: Path, doc: Any) -> None:
+    """Write ``doc`` as JSON through a temporary file (the file's mode and owner kept, a new
+    one 0666 less the umask)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh, indent=1)
-        os.replace(tmp, path)
-    except OSError:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    replace_file(path, json.dumps(doc, indent=1).encode("utf-8"))
 
 
 class ReportingMixin:

@@ -25,12 +25,10 @@ the figure comes with the ``report`` extra; without it the page has no figure).
 
 from __future__ import annotations
 
-import contextlib
 import html
 import io
 import json
 import os
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -40,6 +38,7 @@ from typing import Any
 import shapely
 import shapely.affinity
 
+from printability.base.files import write_atomic
 from printability.errors import PrintabilityOSError, PrinterError
 from printability.layers import LayerStack
 
@@ -112,17 +111,7 @@ class DemoResult:
 
 
 def _write_atomic(path: Path, data: bytes | str) -> Path:
-    raw = data.encode("utf-8") if isinstance(data, str) else data
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(raw)
-        os.replace(tmp, path)
-    except OSError as exc:
-        with contextlib.suppress(OSError, UnboundLocalError):
-            os.unlink(tmp)
-        raise PrintabilityOSError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    write_atomic(path, data)  # keeps an existing file's mode and owner; 0666 less the umask
     return path
 
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -146,6 +146,7 @@ def generate_gcode(
     machine: str | Machine = "ttr",
     *,
     options: GenerateOptions = GenerateOptions(),
+    on_progress: Callable[[str, int, int], None] | None = None,
 ) -> tuple[str, GenerateResult]:
     """Plan and write the G-code of a part.
 
@@ -159,6 +160,9 @@ def generate_gcode(
         rotary letter and limits, temperatures, speeds, retraction, start/end G-code.
     options
         See :class:`GenerateOptions`.
+    on_progress
+        Called as ``on_progress(stage, done, total)``: "planning the layers" after each
+        layer (``done`` of ``total``), then "estimating the print time" (``total`` 0).
 
     Returns
     -------
@@ -226,6 +230,8 @@ def generate_gcode(
     summary: list[dict[str, float]] = []
     extruded = dropped = 0.0
     prev_angle = 0.0
+    report = on_progress or (lambda stage, done, total: None)
+    report("planning the layers", 0, len(layers))
     for li, layer in enumerate(layers):
         h = layer.height if layer.height > 0 else w_wall / 2
         region = layer.region
@@ -287,6 +293,7 @@ def generate_gcode(
         summary.append({"z": layer.z, "target_area": layer.area,
                         "lost_area": layer_drop * w_wall,
                         "dropped_moves": 0, "dropped_length": layer_drop, "split_moves": 0})
+        report("planning the layers", li + 1, len(layers))
     em.retract(r_len, feed=r_feed)
     em.postamble()
     em.extend(_template(mach, "end", list(flavor.end_gcode()), temps))
@@ -298,6 +305,7 @@ def generate_gcode(
     if turns:
         notes.append(flavor.rotary_setup_note(mach.rotary_axis))
     body = em.text()
+    report("estimating the print time", 0, 0)
     t = estimate_print_time(parse_gcode(body.encode()), limits=mach.planner,
                             rotary=RotaryAxis(**{**mach.rotary_axis.__dict__,
                                                  "letter": wopts.letter}))
@@ -433,20 +441,28 @@ def generate_file(
     layer_height: float | None = None,
     first_layer_height: float | None = None,
     units: str | None = None,
+    on_progress: Callable[[str, int, int], None] | None = None,
 ) -> GenerateResult:
     """Load layers (any source :func:`printability.sources.load_layers` reads), generate, and
-    write the G-code atomically to ``output``."""
+    write the G-code atomically to ``output``.
+
+    ``on_progress(stage, done, total)`` hears "reading NAME", the stages of
+    :func:`generate_gcode` and "writing NAME" (``total`` 0: a stage with no count).
+    """
+    report = on_progress or (lambda stage, done, total: None)
     if isinstance(input_path, LayerStack):
         layers = input_path
     else:
         from printability.sources import load_layers
 
+        report(f"reading {Path(input_path).name}", 0, 0)
         layers = load_layers(input_path, layer_height=layer_height,
                              first_layer_height=first_layer_height, units=units)
-    text, res = generate_gcode(layers, nozzle, machine, options=options)
+    text, res = generate_gcode(layers, nozzle, machine, options=options, on_progress=report)
     out = Path(output)
     from printability.postprocess import _write_atomic
 
+    report(f"writing {out.name}", 0, 0)
     try:
         _write_atomic(out, text.encode("utf-8"))
     except OSError as exc:

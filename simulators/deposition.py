@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ from shapely.geometry import MultiPolygon, Polygon
 from shapely.strtree import STRtree
 
 from printability.base.errors import PrintabilityOSError
+from printability.base.files import replace_file
 from printability.geometry import polygons_of
 from printability.layers import LayerStack
 from printability.nozzle import Nozzle
@@ -122,17 +122,8 @@ def write_record(record: DepositionRecord, path: str | os.PathLike[str]) -> Path
     data = json.dumps(record.to_json(), indent=1, allow_nan=False)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(data)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a record is an ordinary file
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        # a record is an ordinary file: 0666 less the umask, or the mode of the one it replaces
+        replace_file(path, data.encode("utf-8"))
     except OSError as exc:
         raise PrintabilityOSError(f"{path}: cannot write the simulator record "
                                   f"({exc.strerror or exc})") from None

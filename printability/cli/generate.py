@@ -7,7 +7,12 @@ from pathlib import Path
 
 import typer
 
-from printability.cli.common import choices_help, note_default_layer_height, spec_epilog
+from printability.cli.common import (
+    choices_help,
+    note_default_layer_height,
+    spec_epilog,
+    stage_progress,
+)
 from printability.options import FEED_POLICIES
 
 __all__ = ["generate_command", "register"]
@@ -42,6 +47,9 @@ def generate_command(
     absolute_e: bool = typer.Option(False, "--absolute-e", help="M82 absolute E (default M83)."),
     center: bool = typer.Option(True, "--center/--no-center",
                                 help="Move the part to the middle of the machine's bed."),
+    progress: bool = typer.Option(True, "--progress/--no-progress",
+                                  help="Show the stage and the layers planned on stderr (in a "
+                                       "terminal)."),
 ) -> None:
     """Plan walls and infill inside what the nozzle can print, choose the nozzle angle of every
     move (widest bead that fits), order regions to cut travel, and write the G-code."""
@@ -50,8 +58,10 @@ def generate_command(
     opts = GenerateOptions(perimeters=perimeters, infill_angle=infill_angle,
                            feed_policy=FEED_POLICIES.check(feed_policy) if feed_policy else None,
                            unwind=unwind, relative_e=not absolute_e, center=center)
-    res = generate_file(input, output, nozzle, machine, options=opts, layer_height=layer_height,
-                        first_layer_height=first_layer_height, units=units)
+    with stage_progress(enabled=progress) as on_progress:
+        res = generate_file(input, output, nozzle, machine, options=opts,
+                            layer_height=layer_height, first_layer_height=first_layer_height,
+                            units=units, on_progress=on_progress)
     note_default_layer_height(input, layer_height)  # once the mesh is read
     typer.echo(f"{res.path}: {res.layers} layers, {res.lines} lines, "
                f"{res.extruded_length:.1f} mm of bead extruded, {res.rotations} turns; "

@@ -12,6 +12,8 @@ import functools
 import importlib
 import sys
 import textwrap
+import warnings
+from typing import TextIO
 
 import typer
 import typer.core
@@ -184,18 +186,54 @@ def run(argv: list[str] | None = None) -> int:
         # the first run after an install or an upgrade: say why nothing happens, when the
         # first kernel actually compiles (not before a bad argument's one-paragraph error)
         announce_first_compile(lambda msg: print(msg, file=sys.stderr, flush=True))
+    shown = warnings.showwarning
+    warnings.showwarning = _show_warning
     try:
         _command()(args=argv, prog_name="printability", standalone_mode=True)
     except SystemExit as exc:
         code = exc.code
+        ctrl_c = _keyboard_interrupt(exc)
+        if ctrl_c is not None:  # Typer turns Ctrl-C into a silent exit 130: say it
+            print(_interrupted(ctrl_c), file=sys.stderr)
         return code if isinstance(code, int) else (0 if code is None else 1)
     except PrintabilityError as exc:
         print(error_paragraph(exc), file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("printability: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(_interrupted(exc), file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = shown
     return 0
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: TextIO | None = None, line: str | None = None) -> None:
+    """A library's warning as one line of ours: no source path, no line of its code (a
+    RuntimeWarning from numpy inside a reader printed both before our one-paragraph error)."""
+    text = " ".join(str(message).split())
+    if len(text) > 200:
+        text = text[:200] + "…"
+    print(f"printability: warning: {text}", file=sys.stderr if file is None else file)
+
+
+def _keyboard_interrupt(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt ``exc`` was raised from, if any (its cause or context chain)."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, KeyboardInterrupt):
+            return cur
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
+def _interrupted(exc: KeyboardInterrupt) -> str:
+    """One paragraph for Ctrl-C, with what the command said is left as it was (its notes)."""
+    notes = "; ".join(getattr(exc, "__notes__", ()))
+    return textwrap.fill("printability: interrupted" + (f"; {notes}" if notes else ""),
+                         width=100)
 
 
 if __name__ == "__main__":  # pragma: no cover

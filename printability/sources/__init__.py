@@ -31,6 +31,7 @@ from printability.errors import FileFormatError, InputError, PrintabilityOSError
 from printability.layers import LayerStack
 from printability.options import SOURCE_FORMATS
 from printability.settings import DEFAULT_SETTINGS, Settings
+from printability.sources._common import option_name
 
 __all__ = ["EXTENSIONS", "detect_format", "load_layers"]
 
@@ -105,8 +106,9 @@ def detect_format(path: str | Path) -> str:
         known = ", ".join(sorted(EXTENSIONS))
         raise FileFormatError(
             p, "cannot tell what kind of file this is from its extension "
-            f"{excerpt(p.suffix, 20)} or its first bytes; expected one of {known} (or pass "
-            f"format=, one of {', '.join(SOURCE_FORMATS.choices)})")
+            f"{excerpt(p.suffix, 20)} or its first bytes; expected one of {known} (give the "
+            "file one of these extensions; from Python, load_layers(..., format=) takes one "
+            f"of {', '.join(SOURCE_FORMATS.choices)})")
     return fmt
 
 
@@ -169,8 +171,10 @@ def load_layers(
     def only(*allowed: str) -> None:
         extra = [k for k, v in given.items() if v is not None and k not in allowed]
         if extra:
-            raise InputError(f"{p}: option(s) {', '.join(extra)} do not apply to {fmt} input"
-                             + (f"; it accepts {', '.join(allowed)}" if allowed else ""))
+            raise InputError(f"{p}: option(s) {', '.join(map(option_name, extra))} do not "
+                             f"apply to {fmt} input"
+                             + (f"; it accepts {', '.join(map(option_name, allowed))}"
+                                if allowed else ""))
 
     kw: dict[str, Any] = {"settings": settings}
     if fmt == "gcode":

@@ -28,6 +28,7 @@ from printability.layers import Layer, LayerStack
 from printability.options import UNITS
 
 __all__ = [
+    "CLI_OPTIONS",
     "MAX_COORDINATE",
     "UNIT_MM",
     "apply_fit",
@@ -39,6 +40,7 @@ __all__ = [
     "lazy_import",
     "multipolygon",
     "nest_even_odd",
+    "option_name",
     "planar_stack",
     "read_bytes",
     "require_file",
@@ -55,17 +57,31 @@ def unit_scale(units: str | None, default: str = "mm") -> float:
     return UNIT_MM[UNITS.check(default if units is None else units)]
 
 
+#: The readers' keyword arguments that are options of the CLI, as the CLI spells them: a
+#: message names the option the user typed (``--layer-height``, not ``layer_height``).
+CLI_OPTIONS = {"layer_height": "--layer-height", "first_layer_height": "--first-layer-height",
+               "units": "--units", "fit": "--fit", "map_scale": "--map-scale", "clip": "--clip",
+               "keep_largest": "--keep-largest"}
+
+
+def option_name(name: str) -> str:
+    """A reader's keyword argument as the CLI option a user gives (``layer_height`` ->
+    ``--layer-height``); a keyword with no CLI option as it is (``geographic=``)."""
+    return CLI_OPTIONS.get(name, f"{name}=")
+
+
 def check_positive(name: str, value: float | None) -> float | None:
-    """``value`` as a float if it is a finite positive number (or None), else InputError."""
+    """``value`` as a float if it is a finite positive number (or None), else InputError
+    naming the option (:func:`option_name`)."""
     if value is None:
         return None
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise InputError(f"{name} must be a positive number of mm; got "
+        raise InputError(f"{option_name(name)} must be a positive number of mm; got "
                          f"{excerpt(str(value))}") from None
     if not (math.isfinite(v) and v > 0):
-        raise InputError(f"{name} must be a positive number of mm; got {v:g}")
+        raise InputError(f"{option_name(name)} must be a positive number of mm; got {v:g}")
     return v
 
 

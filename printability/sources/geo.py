@@ -56,6 +56,7 @@ from printability.geometry import polygons_of
 from printability.layers import LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
+    MAX_COORDINATE,
     apply_fit,
     check_coordinates,
     check_positive,
@@ -78,8 +79,11 @@ KM_PER_DEG_LON_EQUATOR = 111.32
 KM_PER_DEG_LAT = 110.57
 """Kilometres per degree of latitude (WGS84 mean near the equator, rounded)."""
 
-# json.loads builds Python floats and lists: ~40 bytes of objects per byte of text.
-_BYTES_PER_INPUT_BYTE = 40.0
+# Peak memory of a load per byte of the file, measured on files of many small polygons (the
+# worst case: a shapely object, a GEOS geometry and their union's share per polygon): 39 for
+# GeoJSON (json.loads builds Python floats and lists), 45-49 for WKT; 11 for one polygon of
+# 850 000 vertices. The guard said 40, which a 20 MB WKT file passed to use 45.
+_BYTES_PER_INPUT_BYTE = 60.0
 _POLYGONAL = ("Polygon", "MultiPolygon")
 _OTHER_GEOMS = ("Point", "MultiPoint", "LineString", "MultiLineString")
 
@@ -99,6 +103,10 @@ def _rings_polygon(path: Path, coords: Any, where: str) -> Polygon:
     for k, ring in enumerate(coords):
         try:
             a = np.asarray(ring, dtype=float)
+        except OverflowError:  # JSON integers have no limit: 400 digits are not a float
+            raise FileFormatError(path, f"ring {k}: a coordinate is out of range (an integer "
+                                  "beyond any float); expected finite numbers up to "
+                                  f"{MAX_COORDINATE:g}", element=where) from None
         except (TypeError, ValueError):
             raise FileFormatError(path, f"ring {k}: expected a list of [x, y] positions",
                                   element=where) from None

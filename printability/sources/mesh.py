@@ -54,6 +54,7 @@ from printability.geometry import as_region
 from printability.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
+    check_coordinates,
     check_memory,
     check_positive,
     fill_segments,
@@ -240,6 +241,9 @@ def load_mesh(
         raise FileFormatError(p, f"no triangles found; expected a {kind.upper()} mesh")
     if not np.isfinite(mesh.vertices).all():
         raise FileFormatError(p, "the mesh has non-finite (NaN or infinite) vertex coordinates")
+    # before any repair: a vertex at 1.8e20 (a flipped exponent bit) made trimesh's rounding
+    # warn with its source path, then "no volume inside a 20 × 1.845e+20 × 20 mm box"
+    check_coordinates(p, mesh.vertices)
 
     # Units.
     file_units = None
@@ -256,6 +260,7 @@ def load_mesh(
         k = _3MF_UNITS_MM[file_units]
     else:
         k = 1.0
+    check_coordinates(p, mesh.vertices * k)  # in mm: a unit's scale may take them out of range
     n_read = len(mesh.faces)
 
     # Repair.

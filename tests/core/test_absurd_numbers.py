@@ -59,6 +59,9 @@ def prusa_short_copy(shared_data, tmp_path):
     ("huge.wkt", "POLYGON ((0 0, 1e308 0, 10 10, 0 10, 0 0))", "out of range"),
     ("huge.geojson", '{"type":"Polygon","coordinates":[[[0,0],[1e308,0],[10,10],[0,0]]]}',
      "out of range"),
+    # a JSON integer of 400 digits is no float (OverflowError, found by the hypothesis suite)
+    ("digits.geojson", '{"type":"Polygon","coordinates":[[[0,0],[' + "9" * 400
+     + ',0],[10,10],[0,0]]]}', "out of range"),
 ])
 def test_drawings_with_absurd_coordinates(tmp_path, name, text, match):
     src = tmp_path / name
@@ -88,3 +91,27 @@ def test_svg_with_absurd_numbers(tmp_path, body, match):
                         "--no-progress"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
     assert match in " ".join(r.stderr.split())
+
+
+@pytest.mark.parametrize(("value", "match"), [(-1.8446744e20, "out of range"),
+                                              (1e16, "out of range")])
+def test_a_mesh_with_an_absurd_vertex(tmp_path, value, match):
+    """A binary STL whose vertex has a flipped exponent bit (found by the fuzz suite): trimesh
+    warned with its source path, then the error spoke of a box 1.8e20 mm tall."""
+    import numpy as np
+
+    verts = np.array([[0, 0, 0], [20, 0, 0], [0, 20, 0], [0, 0, 20]], float)
+    faces = [(0, 2, 1), (0, 1, 3), (1, 2, 3), (0, 3, 2)]
+    tri = np.array([verts[list(f)] for f in faces], np.float32)
+    tri[1, 2, 1] = value  # one coordinate of one triangle's corner
+    rec = np.zeros(len(tri), dtype=[("normal", "<f4", 3), ("v", "<f4", (3, 3)),
+                                    ("attr", "<u2")])
+    rec["v"] = tri
+    src = tmp_path / "tetra.stl"
+    src.write_bytes(b"\0" * 80 + np.uint32(len(tri)).tobytes() + rec.tobytes())
+    r = subprocess.run([sys.executable, "-m", "printability", "analyze", str(src),
+                        "--layer-height", "5", "--no-progress"], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "Warning" not in r.stderr, r.stderr
+    assert r.stderr.startswith("printability: error: ") and match in r.stderr, r.stderr

@@ -140,3 +140,27 @@ def test_an_error_paragraph_is_capped_whatever_the_message():
     assert len(words) < ERROR_LENGTH + 200 and "message cut" in words
     short = error_paragraph(ValueError("a  short\nmessage"))
     assert short == "printability: error: a short message"
+
+
+def test_a_library_warning_is_one_line_of_ours(monkeypatch, capsys, tmp_path):
+    """A warning raised inside a library (numpy's RuntimeWarning in trimesh, GEOS's) printed
+    its source path and line of code before the one-paragraph error; it is one line now."""
+    import warnings
+
+    import printability.sources as sources
+    from printability.cli.main import run
+    from printability.errors import InputError
+
+    def load(*args, **kwargs):
+        warnings.warn_explicit("invalid value encountered in cast", RuntimeWarning,
+                               "/venv/site-packages/trimesh/grouping.py", 99)
+        raise InputError("the part is bad")
+
+    monkeypatch.setattr(sources, "load_layers", load)
+    src = tmp_path / "part.wkt"
+    src.write_text("POLYGON ((0 0, 10 0, 10 10, 0 10, 0 0))")
+    assert run(["analyze", str(src), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert err.splitlines() == ["printability: warning: invalid value encountered in cast",
+                                "printability: error: the part is bad"], err
+    assert warnings.showwarning.__module__ != "printability.cli.main"  # put back

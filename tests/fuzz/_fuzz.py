@@ -20,6 +20,7 @@ import re
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -127,6 +128,8 @@ class Outcome:
     args: list[str]
     stderr: str = ""
     seconds: float = 0.0
+    peak: int = 0  # the process's peak resident memory, bytes (0: not known)
+    size: int = 0  # the input's size, bytes
 
 
 @dataclass
@@ -142,9 +145,17 @@ class Tally:
 
     def line(self, name: str) -> str:
         c = self.counts
+        peak = max((o.peak for o in self.outcomes), default=0)
         return (f"fuzz {name}: tried {len(self.outcomes)} / clean {c['clean']} / error "
                 f"{c['error']} / traceback {c['traceback']} / hang {c['hang']} / other "
-                f"{c['other']}")
+                f"{c['other']}; peak memory {peak / 2**20:.0f} MiB")
+
+    def over_memory(self, reference: int, per_byte: float) -> list[Outcome]:
+        """Runs whose peak memory passed the guard's estimate: ``per_byte`` times the input's
+        size over ``reference`` (the peak of an unmutated run: the libraries and the sample),
+        with a quarter of ``reference`` for the allocator's noise."""
+        return [o for o in self.outcomes
+                if o.peak > 1.25 * reference + per_byte * o.size]
 
 
 def classify(returncode: int | None, stderr: str) -> str:
@@ -162,18 +173,66 @@ def classify(returncode: int | None, stderr: str) -> str:
     return "other"
 
 
+def _input_size(args: Sequence[str]) -> int:
+    """The size of the input file a command line names (its first existing path)."""
+    nozzles = [Path(a.split(":", 1)[1]) for a in args if a.startswith("polygon:")]
+    for path in [*nozzles, *map(Path, args[1:])]:  # the mutant is the nozzle, if one is
+        if path.is_file():
+            return path.stat().st_size
+    return 0
+
+
+def _high_water(pid: int) -> int | None:
+    """The peak resident memory of process ``pid``'s address space so far (``VmHWM``), bytes;
+    None once it has exited."""
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError):
+        pass
+    return None
+
+
 def run_cli(args: Sequence[str], *, timeout: float) -> Outcome:
+    """Run ``printability ARGS``; its outcome, time and peak memory.
+
+    The peak is the child's ``VmHWM`` read every 20 ms while it runs (the last reading: its
+    address space's high-water mark). ``ru_maxrss`` would not do: it keeps the resident size
+    of this process copied at the fork, before the exec.
+    """
     t0 = time.monotonic()
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PRINTABILITY_SERVER": "off"}
-    try:
-        r = subprocess.run([*PYTHON, *args], capture_output=True, timeout=timeout, cwd=ROOT,
-                           env=env)
-    except subprocess.TimeoutExpired as exc:
-        err = (exc.stderr or b"").decode("utf-8", "replace")
-        return Outcome("hang", list(args), err[-2000:], time.monotonic() - t0)
-    err = r.stderr.decode("utf-8", "replace")
-    return Outcome(classify(r.returncode, err), list(args), err[-2000:],
-                   time.monotonic() - t0)
+    proc = subprocess.Popen([*PYTHON, *args], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, cwd=ROOT, env=env)
+    chunks: list[bytes] = []
+    reader = threading.Thread(target=lambda: chunks.extend(iter(
+        lambda: proc.stderr.read(65536), b"")), daemon=True)
+    reader.start()
+    deadline = t0 + timeout
+    status, peak = None, 0
+    while True:
+        hwm = _high_water(proc.pid)
+        if hwm is not None:
+            peak = hwm
+        pid, wstatus, _ = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            status = os.waitstatus_to_exitcode(wstatus)
+            proc.returncode = status  # reaped here: Popen must not wait for it again
+            break
+        if time.monotonic() > deadline:
+            proc.kill()
+            os.wait4(proc.pid, 0)
+            proc.returncode = -9
+            break
+        time.sleep(0.02)
+    reader.join(5)
+    proc.stderr.close()
+    err = b"".join(chunks).decode("utf-8", "replace")
+    seconds = time.monotonic() - t0
+    kind = "hang" if status is None else classify(status, err)
+    return Outcome(kind, list(args), err[-2000:], seconds, peak, _input_size(args))
 
 
 def gcode_jobs(samples: Sequence[Path], seed: int, count: int, folder: Path
@@ -204,6 +263,20 @@ def svg_jobs(samples: Sequence[Path], seed: int, count: int, folder: Path, part:
             if i % 2 == 0:
                 jobs.append(["analyze", str(part), "--nozzle", f"polygon:{path}",
                              "--no-progress", "-j", "1"])
+    return jobs
+
+
+def analyze_jobs(samples: Sequence[Path], seed: int, count: int, folder: Path,
+                 extra: Sequence[str] = ()) -> list[list[str]]:
+    """``analyze MUTANT EXTRA`` for ``count`` mutants of each sample (a map, slice outlines,
+    a mesh, WKT: any input kind ``analyze`` reads)."""
+    jobs = []
+    for sample in samples:
+        data = sample.read_bytes()
+        for i in range(count):
+            path = folder / f"{sample.stem}.{seed}.{i}{sample.suffix}"
+            path.write_bytes(mutate(data, seed, i))
+            jobs.append(["analyze", str(path), "--no-progress", "-j", "1", *extra])
     return jobs
 
 

@@ -1,8 +1,11 @@
-"""Hypothesis strategies for G-code and SVG, through the readers in this process (issue #24,
-item 5): whatever the input, a reader returns or raises a
-:class:`~printability.errors.PrintabilityError` whose message is one short paragraph."""
+"""Hypothesis strategies for every input kind, through the readers in this process (issue #24,
+item 5): G-code (the post-processor's reader and the host's), SVG, WKT, GeoJSON, slice
+outlines, binary STL, nozzle and machine SPECs. Whatever the input, a reader returns or raises
+a :class:`~printability.errors.PrintabilityError` whose message is one short paragraph."""
 
 from __future__ import annotations
+
+import os
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -11,6 +14,11 @@ from hypothesis import strategies as st
 from gcode import parse_gcode
 from machine_io import parse_program
 from printability.errors import PrintabilityError
+from printability.machine import parse_machine
+from printability.nozzle import parse_nozzle
+from printability.sources.geo import load_geojson_layers, load_wkt_layers
+from printability.sources.mesh import load_mesh
+from printability.sources.slices import load_slice_layers
 from printability.sources.svg import load_svg_layers
 
 # Numbers as files write them, and as fuzzers and broken exporters do.
@@ -34,7 +42,9 @@ LINE = st.tuples(COMMANDS, st.lists(st.one_of(WORD, JUNK), max_size=8),
     lambda t: (t[0] + " " + " ".join(t[1]) + t[2]))
 GCODE = st.lists(LINE, min_size=1, max_size=40).map(lambda lines: "\n".join(lines))
 
-FUZZ = settings(max_examples=60, suppress_health_check=[HealthCheck.too_slow], deadline=None)
+# FUZZ_EXAMPLES=2000 explores more (a developer's knob; CI runs the default)
+FUZZ = settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", "60")),
+                suppress_health_check=[HealthCheck.too_slow], deadline=None)
 
 
 def _check(exc: PrintabilityError) -> None:
@@ -127,3 +137,117 @@ def test_svg_reader_takes_anything_many(tmp_path_factory, doc):
 def test_gcode_readers_take_anything_many(text):
     test_gcode_reader_takes_anything.hypothesis.inner_test(text, "\n")
     test_stream_reader_takes_anything.hypothesis.inner_test(text)
+
+
+# ---------------------------------------------------------------- drawings, maps, meshes
+
+PAIR = st.tuples(NUMBERS, NUMBERS).map(" ".join)
+RING = st.lists(PAIR, min_size=0, max_size=8).map(", ".join)
+WKT_TEXT = st.lists(st.tuples(st.sampled_from(["POLYGON", "MULTIPOLYGON", "LINESTRING",
+                                                "POINT", "polygon", "GEOMETRYCOLLECTION", ""]),
+                              st.lists(RING, min_size=1, max_size=3),
+                              st.sampled_from(["(", "((", "((("])).map(
+    lambda t: f"{t[0]} {t[2]}" + "), (".join(t[1]) + ")" * len(t[2])),
+    min_size=1, max_size=3).map("\n".join)
+
+JSON_NUMBER = st.one_of(st.floats(-1e4, 1e4, allow_nan=False).map(repr),
+                        st.sampled_from(["NaN", "Infinity", "-Infinity", "1e308", "1e309",
+                                         "-0", "1e-320", "9" * 400, '"5"', "null", "true"]))
+POSITION = st.lists(JSON_NUMBER, min_size=0, max_size=3).map(lambda v: "[" + ",".join(v) + "]")
+LINEAR_RING = st.lists(POSITION, min_size=0, max_size=6).map(lambda v: "[" + ",".join(v) + "]")
+POLYGON_COORDS = st.lists(LINEAR_RING, min_size=0, max_size=3).map(
+    lambda v: "[" + ",".join(v) + "]")
+
+
+@st.composite
+def geojson_documents(draw: st.DrawFn) -> str:
+    kind = draw(st.sampled_from(["Polygon", "MultiPolygon", "Point", "LineString", "Nothing"]))
+    coords = draw(POLYGON_COORDS)
+    if kind == "MultiPolygon":
+        coords = "[" + coords + "]"
+    geometry = f'{{"type": "{kind}", "coordinates": {coords}}}'
+    wrap = draw(st.sampled_from(["geometry", "feature", "collection", "list"]))
+    if wrap == "feature":
+        return f'{{"type": "Feature", "properties": {{}}, "geometry": {geometry}}}'
+    if wrap == "collection":
+        return (f'{{"type": "FeatureCollection", "features": [{{"type": "Feature", '
+                f'"geometry": {geometry}}}]}}')
+    return geometry if wrap == "geometry" else f"[{geometry}]"
+
+
+SLICE_TEXT = st.lists(st.one_of(PAIR, NUMBERS, JUNK), min_size=1, max_size=30).map("\n".join)
+
+
+def _load(tmp_path_factory, name: str, data: bytes, loader) -> None:
+    path = tmp_path_factory.mktemp("in") / name
+    path.write_bytes(data)
+    try:
+        loader(path)
+    except PrintabilityError as exc:
+        _check(exc)
+
+
+@FUZZ
+@given(WKT_TEXT)
+def test_wkt_reader_takes_anything(tmp_path_factory, text):
+    _load(tmp_path_factory, "fuzz.wkt", text.encode(), load_wkt_layers)
+
+
+@FUZZ
+@given(geojson_documents())
+def test_geojson_reader_takes_anything(tmp_path_factory, doc):
+    def load(path):
+        return load_geojson_layers(path, fit=50.0)
+
+    _load(tmp_path_factory, "fuzz.geojson", doc.encode(), load)
+
+
+@FUZZ
+@given(st.tuples(NUMBERS, NUMBERS), SLICE_TEXT)
+def test_slice_reader_takes_anything(tmp_path_factory, widths, text):
+    data = f"{widths[0]}\n{widths[1]}\n{text}\n".encode("utf-8", "surrogateescape")
+    _load(tmp_path_factory, "fuzz_outline.txt", data, load_slice_layers)
+
+
+FLOAT32 = st.one_of(st.floats(-100, 100, width=32),
+                    st.sampled_from([float("nan"), float("inf"), -float("inf"), 3e38, -1.8e20,
+                                     1e16, 0.0]))
+
+
+@FUZZ
+@given(st.lists(st.tuples(*[FLOAT32] * 9), min_size=0, max_size=12),
+       st.integers(-2, 2))
+def test_binary_stl_reader_takes_anything(tmp_path_factory, triangles, count_error):
+    import numpy as np
+
+    rec = np.zeros(len(triangles), dtype=[("normal", "<f4", 3), ("v", "<f4", 9),
+                                          ("attr", "<u2")])
+    if triangles:
+        rec["v"] = np.array(triangles, np.float32)
+    count = max(0, len(triangles) + count_error)
+    data = b"\0" * 80 + np.uint32(count).tobytes() + rec.tobytes()
+    _load(tmp_path_factory, "fuzz.stl", data, load_mesh)
+
+
+SPEC_VALUE = st.one_of(NUMBERS, st.sampled_from(["", "x", "0 0;1 0;1 1", "1e-9", "-5"]))
+NOZZLE_PART = st.tuples(st.sampled_from(["circle", "ellipse", "rect", "polygon", "cone", ""]),
+                        st.lists(st.tuples(st.sampled_from(["d", "major", "minor", "w", "h",
+                                                            "angle", "x", "y", "pts", "zz"]),
+                                           SPEC_VALUE).map("=".join), max_size=4)).map(
+    lambda t: t[0] + ":" + ",".join(t[1]))
+NOZZLE_SPEC = st.lists(NOZZLE_PART, min_size=1, max_size=3).map("+".join)
+MACHINE_SPEC = st.tuples(st.sampled_from(["ttr", "xy", "polar", "scara", "ttr-klipper", "5ax"]),
+                         st.lists(st.tuples(st.sampled_from(["min", "max", "step", "speed",
+                                                             "full_turn", "zz"]),
+                                            SPEC_VALUE).map("=".join), max_size=4)).map(
+    lambda t: t[0] + (":" + ",".join(t[1]) if t[1] else ""))
+
+
+@FUZZ
+@given(NOZZLE_SPEC, MACHINE_SPEC)
+def test_nozzle_and_machine_specs_take_anything(nozzle, machine):
+    for parse, spec in ((parse_nozzle, nozzle), (parse_machine, machine)):
+        try:
+            parse(spec)
+        except PrintabilityError as exc:
+            _check(exc)

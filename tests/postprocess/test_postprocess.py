@@ -296,15 +296,21 @@ def test_threads_change_nothing(shared_data, monkeypatch):
 
     data = (shared_data / "gcode" / "prusaslicer_2.7.4_marlin2_arcs.gcode").read_bytes()
     started = []
-    monkeypatch.setattr(par.threading.Thread, "start",
-                        lambda self, _s=par.threading.Thread.start: (started.append(1), _s(self)))
+
+    def start(self, _s=par.threading.Thread.start):
+        # the threads printability._parallel shares work out on (a thread pool's own count
+        # depends on timing: it reuses an idle thread when one is free)
+        started.append(sys._getframe(1).f_code.co_filename == par.__file__)
+        return _s(self)
+
+    monkeypatch.setattr(par.threading.Thread, "start", start)
     outs = {}
     for w in (1, 3):
         started.clear()
         outs[w] = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",
                                                                      workers=w))[0]
-        shared = len(started)
-        assert (shared == 0) if w == 1 else (shared > 10)  # the union and the searches
+        shared = sum(started)
+        assert (len(started) == 0) if w == 1 else (shared > 0)  # the union and the searches
     assert outs[1] == outs[3]
     with pytest.raises(InputError, match="workers must be at least 1"):
         postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, workers=0))

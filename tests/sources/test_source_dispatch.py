@@ -117,10 +117,14 @@ def test_geojson_options_pass_through(shared_data: Path, tmp_path: Path):
 
 
 def test_options_that_do_not_apply(shared_data: Path):
-    with pytest.raises(InputError, match="layer_height do not apply to svg"):
+    # the options as the CLI spells them (issue #23: layer_height named no option a user has)
+    with pytest.raises(InputError, match="--layer-height do not apply to svg input; it "
+                                         "accepts --units, --fit"):
         load_layers(shared_data / "svg" / "bootstrap_gear-fill.svg", layer_height=0.2)
-    with pytest.raises(InputError, match="map_scale do not apply to stl"):
+    with pytest.raises(InputError, match="--map-scale do not apply to stl"):
         load_layers(shared_data / "stl" / "ThinWall.stl", map_scale=1.0)
+    with pytest.raises(InputError, match="--layer-height must be a positive number of mm"):
+        load_layers(shared_data / "stl" / "ThinWall.stl", layer_height=-1.0)
     with pytest.raises(UnknownOptionError, match="unknown unit 'furlong'"):
         load_layers(shared_data / "stl" / "ThinWall.stl", units="furlong")
 
@@ -128,8 +132,11 @@ def test_options_that_do_not_apply(shared_data: Path):
 def test_unknown_missing_and_directory(tmp_path: Path):
     odd = tmp_path / "notes.bin"
     odd.write_bytes(b"\x00\x01 just some bytes \xff")
-    with pytest.raises(FileFormatError, match=r"notes\.bin: cannot tell what kind of file"):
+    with pytest.raises(FileFormatError, match=r"notes\.bin: cannot tell what kind of file") as e:
         load_layers(odd)
+    # what a CLI user can do (the CLI has no format option), then the library's keyword
+    assert "give the file one of these extensions; from Python, load_layers(..., format=)" \
+        in str(e.value)
     with pytest.raises(PrintabilityOSError, match="no such file"):
         load_layers(tmp_path / "absent.stl")
     with pytest.raises(PrintabilityOSError, match="not a regular file"):
@@ -142,7 +149,7 @@ def test_gcode_goes_to_the_gcode_reader(shared_data: Path):
     assert detect_format(path) == "gcode"
     stack = load_layers(path)
     assert len(stack) > 1 and all(lay.area > 0 for lay in stack)
-    with pytest.raises(InputError, match="fit do not apply to gcode"):
+    with pytest.raises(InputError, match="--fit do not apply to gcode"):
         load_layers(path, fit=10.0)
 
 
