@@ -23,6 +23,8 @@ Design (for readers and for the writer that rewrites some moves):
   (vase) files whenever the extruding nozzle has risen by a nominal layer
   height since the layer started.
 
+Binary G-code (``.bgcode``) is read as its text form (:mod:`gcode.bgcode`).
+
 Errors name the file and the 1-based line: binary data is refused, a stray
 non-UTF-8 byte in a comment is kept as it is, a move whose words are not
 numbers is refused, and a file cut off in the middle of a line says so.
@@ -216,7 +218,9 @@ def parse_gcode(
     Parameters
     ----------
     data
-        The file's content.
+        The file's content. Binary G-code (``.bgcode``, PrusaSlicer ≥ 2.7; recognised by
+        its ``GCDE`` start) is decoded first (:mod:`gcode.bgcode`): the result's ``data``
+        is then its text form, the G-code followed by its metadata as comments.
     path
         Name used in messages.
     flavor
@@ -231,16 +235,20 @@ def parse_gcode(
     Raises
     ------
     FileFormatError
-        Empty or binary input, a move whose words are not numbers, a file cut
-        off in the middle of a move, arcs that cannot be interpreted.
+        Empty or binary input (but binary G-code), a move whose words are not numbers, a
+        file cut off in the middle of a move, arcs that cannot be interpreted, a damaged
+        binary G-code file.
     """
     if engine not in ("numba", "python"):
         raise InputError(f"unknown tokeniser engine {engine!r}; expected numba or python")
     _check_memory(len(data), path, settings)
     if data.startswith(_BGCODE_MAGIC):
-        raise FileFormatError(
-            path, "this is a binary G-code (.bgcode) file; export plain-text G-code instead", line=1
-        )
+        # binary G-code (.bgcode): read as its text form, the G-code then its metadata as the
+        # comments a text file ends with (a damaged file is a FileFormatError naming the block)
+        from gcode.bgcode import decode_bgcode
+
+        data = decode_bgcode(data, path=path).text_form()
+        _check_memory(len(data), path, settings)
     if data.startswith((b"\xff\xfe", b"\xfe\xff")):
         raise FileFormatError(
             path, "this is UTF-16 text; save the G-code as ASCII or UTF-8", line=1

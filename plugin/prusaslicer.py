@@ -13,6 +13,13 @@ those of ``printability postprocess`` (``--help``); they can also be given in
 the ``PRINTABILITY_POSTPROCESS_ARGS`` environment variable (shell syntax),
 which is handy when the slicer's field is shared between printers.
 
+PrusaSlicer ≥ 2.7 writes binary G-code (``.bgcode``) for printers that support
+it and hands that binary file to its scripts: it is recognised by its content
+and rewritten in place as binary G-code, thumbnails and metadata kept, the
+G-code blocks re-encoded with the file's own compression and encoding (see
+:mod:`gcode.bgcode`). A damaged binary file is a one-paragraph error and is
+left untouched.
+
 When ``printability serve`` is running, the run is handed to it (same output
 file, same messages, same exit code) and this process costs Python's start and
 a socket round trip instead of the libraries' start; otherwise, or if the

@@ -54,25 +54,36 @@ or any other shape, is checked move by move with its whole orifice.
 
 from __future__ import annotations
 
+import contextvars
 import math
 import os
 import re
 import stat
-import tempfile
 import time
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from gcode import MF_E_RELATIVE, NON_PART_CATEGORIES, parse_gcode
+from gcode.bgcode import (
+    GCODE_ENCODINGS,
+    PRINT_METADATA,
+    PRINTER_METADATA,
+    BinaryGCode,
+    decode_bgcode,
+    encode_bgcode,
+    is_bgcode,
+    rescaled_metadata,
+)
 from gcode.dialects import INTERIOR_CATEGORIES
 from gcode.flavors import RotaryAxis
 from gcode.printtime import PrintTime, estimate_print_time, format_duration
 from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
 from printability._arrays import take_rows
+from printability.base.files import replace_file
 from printability.errors import (
     FileFormatError,
     InputError,
@@ -94,6 +105,7 @@ from printability.settings import DEFAULT_SETTINGS
 from printability.targets import layer_targets
 
 __all__ = [
+    "PROCESSED_KEY",
     "LayerReport",
     "PostprocessOptions",
     "PostprocessResult",
@@ -229,7 +241,9 @@ class PostprocessResult:
     already_processed: bool
     # print_time_in / print_time_out: seconds Klipper's planner takes for the slicer's file
     # and for the rewritten one with the machine's limits (gcode.printtime), None when not
-    # estimated
+    # estimated; filament_in / filament_out: mm of filament the extruding moves push, before
+    # and after; binary: what the binary G-code's G-code blocks are (compression, encoding),
+    # None for text G-code
     lines_in: int
     lines_out: int
     changed_lines: int
@@ -242,6 +256,9 @@ class PostprocessResult:
     notes: tuple[str, ...] = ()
     print_time_in: float | None = None
     print_time_out: float | None = None
+    filament_in: float | None = None
+    filament_out: float | None = None
+    binary: str | None = None
 
     @property
     def dropped_moves(self) -> int:
@@ -309,7 +326,13 @@ def settings_from_environment(env: Mapping[str, str] | None = None) -> dict[str,
 
 
 def already_processed(data: bytes) -> bool:
-    """True when printability's marker comment is in the file."""
+    """True when printability's marker comment is in the file (binary G-code: in its G-code,
+    or its print metadata say so)."""
+    if is_bgcode(data):
+        try:
+            return _binary_processed(decode_bgcode(data))
+        except FileFormatError:
+            return False
     return _first_at_line_start(data, b"; printability ", _PROCESSED) is not None
 
 
@@ -362,6 +385,31 @@ def _config_value(data: bytes, key: str) -> float | None:
 # ----------------------------------------------------------------- layer targets
 
 
+#: ``on_progress(stage, done, total)`` of the run under way (:func:`postprocess_file`'s
+#: ``on_progress``); ``total`` 0 when the stage has no count
+ProgressCallback = Callable[[str, int, int], None]
+_PROGRESS: contextvars.ContextVar[ProgressCallback | None] = contextvars.ContextVar(
+    "printability_postprocess_progress", default=None)
+
+
+def _progress(stage: str, done: int = 0, total: int = 0) -> None:
+    """Tell the run's ``on_progress`` (if any) which stage it is in and how far."""
+    report = _PROGRESS.get()
+    if report is not None:
+        report(stage, done, total)
+
+
+def _counted(batches: Iterator[tuple], total: int) -> Iterator[tuple]:
+    """``batches`` of :func:`printability.targets.layer_targets`, each reported as planned
+    when the next one is asked for (a batch's first item is its layers)."""
+    done = 0
+    _progress("planning the layers", 0, total)
+    for batch in batches:
+        yield batch
+        done += len(batch[0])
+        _progress("planning the layers", done, total)
+
+
 def _part_mask(g) -> np.ndarray:
     """Extrusions that belong to the part (not skirt, support, purge, wipe...)."""
     m = g.moves
@@ -387,6 +435,9 @@ def postprocess_bytes(
 ) -> tuple[bytes, PostprocessResult]:
     """Post-process G-code bytes; see the module docstring.
 
+    Binary G-code (``.bgcode``, recognised by its content) comes back as binary G-code:
+    see :func:`_postprocess_binary`.
+
     Returns
     -------
     (bytes, PostprocessResult)
@@ -395,8 +446,10 @@ def postprocess_bytes(
     Raises
     ------
     FileFormatError, InputError
-        Unreadable G-code, bad options.
+        Unreadable G-code (a damaged binary file among them), bad options.
     """
+    if is_bgcode(data):
+        return _postprocess_binary(data, path=path, options=options, env=env)
     t_start = time.perf_counter()
     envs = settings_from_environment(env if env is not None else {})
     if already_processed(data):
@@ -415,6 +468,7 @@ def postprocess_bytes(
         nozzle = parse_nozzle(f"circle:d={format_number(float(d), 4)}")
     else:
         nozzle = parse_nozzle(options.nozzle)
+    _progress("reading the G-code")
     g = parse_gcode(data, path=path)
     # the machine's flavor, else the one the slicer wrote the file for
     flavor = machine.firmware(g.flavor)
@@ -463,6 +517,8 @@ def postprocess_bytes(
             planned = width_from_e(mm["e"][ok] / length[ok], h[ok], float(fd))
         slicer_d = float(np.median(planned)) if planned.size else 0.0
     narrow_beads = bool(nozzle.is_round and 2 * nozzle.footprints[0].a <= slicer_d + 1e-9)
+    if not narrow_beads:
+        _check_memory(len(data), path, planned=True)  # before the plan grows
     period = nozzle.symmetry_period
     turns = machine.turns(nozzle)
     wopts = WriterOptions(letter=letter, period=period if turns else 0.0,
@@ -502,6 +558,8 @@ def postprocess_bytes(
         order = np.zeros(0, np.int64)
         bounds = np.zeros(n_layers + 1, np.int64)
         batches = iter(())
+    if part_idx.size and not narrow_beads:
+        batches = _counted(batches, n_layers)
 
     # ---- plan every layer: batches of layers side by side, one target per batch
     seg_angle = np.zeros(len(seg))
@@ -561,6 +619,7 @@ def postprocess_bytes(
     with np.errstate(invalid="ignore"):
         width_for_e = np.where(seg_interior & (seg_width_laid > widths)
                                & options.orientation.wider_interior, widths, seg_width_laid)
+    _progress("rewriting the moves")
     out, turned_per_layer = rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold,
                                     width_for_e, seg_pieces, widths, heights, wopts, turns,
                                     e_policy, nozzle, piece_rows=piece_rows,
@@ -584,10 +643,12 @@ def postprocess_bytes(
         notes.append(flavor.rotary_setup_note(axis))
     # the print time on the firmware's planner, before and after (the body has no header
     # yet; comments take no time)
+    _progress("estimating the print time")
     t_in = estimate_print_time(g, limits=machine.planner, rotary=axis)
-    t_out = estimate_print_time(parse_gcode(b"".join(out.chunks), path=path),
-                                limits=machine.planner, rotary=axis) if out.rotary_words \
-        or out.changed else t_in
+    g_out = parse_gcode(b"".join(out.chunks), path=path) if out.rotary_words or out.changed \
+        else g
+    t_out = estimate_print_time(g_out, limits=machine.planner, rotary=axis) \
+        if g_out is not g else t_in
     notes.append(print_time_note(t_in.total, t_out))
     head = header_lines(version=__version__, nozzle=nozzle.spec, machine=machine.spec,
                         options=wopts, mode="postprocessed", summary=summary, notes=notes,
@@ -617,8 +678,87 @@ def postprocess_bytes(
         inserted_lines=out.inserted + len(head), rotary_words=out.rotary_words,
         layers=tuple(reports), elapsed=elapsed, nozzle=nozzle.spec, machine=machine.spec,
         notes=tuple(notes), print_time_in=t_in.total, print_time_out=t_out.total,
+        filament_in=_filament(g.moves), filament_out=_filament(g_out.moves),
     )
     return result_bytes, res
+
+
+def _filament(moves: np.ndarray) -> float:
+    """mm of filament the extruding moves push."""
+    return float(moves["e"][moves["is_extrusion"]].sum())
+
+
+# ----------------------------------------------------------------- binary G-code
+
+#: Print-metadata key that marks a binary file whose G-code encoding drops comments
+#: (MeatPack without comments), where the comment block cannot say it was post-processed
+PROCESSED_KEY = "postprocessed by"
+
+
+def _binary_processed(doc: BinaryGCode) -> bool:
+    marked = doc.value(PROCESSED_KEY)
+    return (marked is not None and marked.startswith("printability")) or \
+        already_processed(doc.gcode)
+
+
+def _postprocess_binary(
+    data: bytes,
+    *,
+    path: str,
+    options: PostprocessOptions,
+    env: Mapping[str, str] | None,
+) -> tuple[bytes, PostprocessResult]:
+    """Post-process binary G-code: binary G-code in, binary G-code out.
+
+    The file is decoded (:func:`gcode.bgcode.decode_bgcode`: every block's CRC checked) to
+    its text form, the G-code followed by the metadata as the comments a text file ends with
+    (the slicer, its flavor and nozzle are read there as from a text file); that text goes
+    through :func:`postprocess_bytes`, and its G-code part is encoded back
+    (:func:`gcode.bgcode.encode_bgcode`): the G-code blocks it leaves as they were and every
+    thumbnail and metadata block are kept byte for byte, the rest re-encoded with the file's
+    own compression and encoding. The metadata PrusaSlicer derives from the G-code are
+    updated in the print and printer metadata (:func:`gcode.bgcode.rescaled_metadata`):
+    the estimated printing times by the ratio of the print times the firmware's planner
+    gives the new and the old G-code, the filament used and its cost by the ratio of the
+    filament the extruding moves push. Line numbers in messages are those of the G-code.
+    """
+    t_start = time.perf_counter()
+    doc = decode_bgcode(data, path=path)
+    _check_memory(len(doc.gcode), path, binary=True)
+    n_in = doc.gcode.count(b"\n")
+    if _binary_processed(doc):
+        res = PostprocessResult(path, path, True, n_in, n_in, 0, 0, 0, (), 0.0, "", "",
+                                ("already post-processed by printability: left unchanged",),
+                                binary=doc.describe())
+        return data, res
+    trailer = doc.trailer()
+    new_text, res = postprocess_bytes(doc.gcode + trailer, path=path, options=options, env=env)
+    if not new_text.endswith(trailer):  # pragma: no cover - the metadata comments are kept
+        raise RuntimeError(f"{path}: post-processing changed the metadata comments after the "
+                           "G-code")
+    gcode = new_text[:len(new_text) - len(trailer)]
+    time_factor = res.print_time_out / res.print_time_in \
+        if res.print_time_in and res.print_time_out is not None else None
+    filament_factor = res.filament_out / res.filament_in \
+        if res.filament_in and res.filament_out is not None else None
+    updates: dict[int, dict[str, str]] = {}
+    for kind in (PRINT_METADATA, PRINTER_METADATA):
+        updates[kind] = rescaled_metadata(doc.metadata_of(kind), time_factor=time_factor,
+                                          filament_factor=filament_factor)
+    notes = list(res.notes)
+    if GCODE_ENCODINGS[doc.encoding] == "MeatPack":
+        # this encoding keeps no comment: the marker goes in the print metadata
+        updates[PRINT_METADATA][PROCESSED_KEY] = f"printability {__version__}"
+        notes.append("binary G-code encoded with MeatPack without comments: the comment "
+                     "block is not kept, the print metadata say the file was post-processed")
+    changed = sorted({k for u in updates.values() for k in u} - {PROCESSED_KEY})
+    if changed:
+        notes.append("binary G-code metadata updated: " + ", ".join(changed))
+    new = encode_bgcode(doc, gcode, metadata=updates)
+    n_trailer = trailer.count(b"\n")
+    return new, replace(res, lines_in=res.lines_in - n_trailer,
+                        lines_out=res.lines_out - n_trailer, notes=tuple(notes),
+                        binary=doc.describe(), elapsed=time.perf_counter() - t_start)
 
 
 def print_time_note(t_in: float, out: PrintTime) -> str:
@@ -695,40 +835,38 @@ def _planned_widths(g, seg, seg_move, filament_diameter) -> np.ndarray:
 # ----------------------------------------------------------------- files
 
 
-def _umask() -> int:
-    mask = os.umask(0o022)  # read it (there is no other portable way) and put it back
-    os.umask(mask)
-    return mask
+#: Peak memory of a run per byte of G-code, measured (peak RSS less the libraries' 0.2 GB):
+#: the slicer's moves kept as they are (a round nozzle no larger than the slicer's), 22.6 for
+#: a 200 MB, 8.5 M-line file; every move planned and turned (an elliptical nozzle), 90 on
+#: 2-15 MB files: the plan, and the output (2.5 times as many lines) read again for its print
+#: time.
+BYTES_PER_BYTE_KEPT = 25
+BYTES_PER_BYTE_PLANNED = 100
+
+
+def _check_memory(size: int, path: object, *, binary: bool = False,
+                  planned: bool = False) -> None:
+    """Refuse ``size`` bytes of G-code text that would need more memory than allowed: checked
+    before the file is read (``planned`` False: the least any run needs), and again once the
+    file says its moves must be planned (``planned``)."""
+    factor = BYTES_PER_BYTE_PLANNED if planned else BYTES_PER_BYTE_KEPT
+    need = factor * size
+    if need > DEFAULT_SETTINGS.max_memory:
+        what = "G-code (decoded from the binary file)" if binary else "G-code"
+        how = (" with this nozzle (every move planned)" if planned else "")
+        raise ResourceError(f"{path}: {size / 2**20:.0f} MiB of {what} would need about "
+                            f"{need / 2**30:.1f} GiB of memory to post-process{how}, more "
+                            f"than the limit of {DEFAULT_SETTINGS.max_memory / 2**30:.1f} GiB "
+                            "(half this machine's memory); split the print or use a larger "
+                            "machine")
 
 
 def _write_atomic(path: Path, content: bytes) -> None:
-    """Write ``content`` to ``path`` through a temporary file in the same directory.
-
-    The file keeps the mode of the one it replaces; a new file gets 0666 less the umask, as
-    ``open`` would give it (the temporary file is created 0600).
-    """
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(content)
-            fh.flush()
-            os.fsync(fh.fileno())
-        try:
-            mode = path.stat().st_mode & 0o7777
-        except OSError:
-            mode = 0o666 & ~_umask()
-        try:
-            os.chmod(tmp, mode)
-        except OSError:
-            pass
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    """Write ``content`` to ``path`` through :func:`printability.base.files.replace_file`:
+    the file keeps the mode and, where this process may set it, the owner of the one it
+    replaces; a new file gets 0666 less the umask; a kill while writing leaves no
+    temporary file beside it."""
+    replace_file(path, content)
 
 
 def postprocess_file(
@@ -737,6 +875,7 @@ def postprocess_file(
     options: PostprocessOptions = PostprocessOptions(),
     output: str | os.PathLike[str] | None = None,
     env: Mapping[str, str] | None = None,
+    on_progress: ProgressCallback | None = None,
 ) -> PostprocessResult:
     """Post-process a G-code file, in place unless ``output`` is given.
 
@@ -756,12 +895,25 @@ def postprocess_file(
         Write here instead of in place.
     env
         Environment with the slicer's ``SLIC3R_*`` settings (default: ``os.environ``).
+    on_progress
+        Called as ``on_progress(stage, done, total)`` when a stage starts ("reading the
+        G-code", "planning the layers", "rewriting the moves", "estimating the print time",
+        "writing FILE") and as the layers are planned (``total`` 0: a stage with no count).
 
     Raises
     ------
     PrintabilityOSError, FileFormatError, InputError
     """
-    p = Path(path)
+    token = _PROGRESS.set(on_progress)
+    try:
+        return _postprocess_file(Path(path), options=options, output=output, env=env)
+    finally:
+        _PROGRESS.reset(token)
+
+
+def _postprocess_file(p: Path, *, options: PostprocessOptions,
+                      output: str | os.PathLike[str] | None,
+                      env: Mapping[str, str] | None) -> PostprocessResult:
     try:
         st = p.stat()
     except OSError as exc:
@@ -771,14 +923,9 @@ def postprocess_file(
         # a device or a FIFO: /dev/zero would be read until memory runs out, a FIFO waited on
         raise PrintabilityOSError(f"{p}: not a regular file (expected a G-code file a slicer "
                                   "wrote)")
-    # the reader, the plan and the output hold about 25 bytes per byte of G-code (measured:
-    # 4.7 GB for a 200 MB file)
-    need = 25 * st.st_size
-    if need > DEFAULT_SETTINGS.max_memory:
-        raise ResourceError(f"{p}: {st.st_size / 2**20:.0f} MiB of G-code would need about "
-                            f"{need / 2**30:.1f} GiB of memory to post-process, more than the "
-                            f"limit of {DEFAULT_SETTINGS.max_memory / 2**30:.1f} GiB (half this "
-                            "machine's memory); split the print or use a larger machine")
+    # a nozzle that is not round plans every move: that estimate, before anything is read
+    _check_memory(st.st_size, p, planned=options.nozzle is not None
+                  and not parse_nozzle(options.nozzle).is_round)
     try:
         data = p.read_bytes()
     except OSError as exc:
@@ -789,6 +936,7 @@ def postprocess_file(
     target = Path(output) if output is not None else p
     if res.already_processed and output is None:
         return res
+    _progress(f"writing {target.name}")
     try:
         _write_atomic(target, new)
     except OSError as exc:

@@ -3,7 +3,8 @@
 Run by a PrusaSlicer-family slicer as a post-processing script, the G-code
 path is the last argument and the file is rewritten in place; the slicer's
 ``SLIC3R_*`` settings come from the environment, options given here override
-them.
+them. Binary G-code (``.bgcode``, PrusaSlicer ≥ 2.7, recognised by its content)
+is written back as binary G-code with the same compression and encoding.
 """
 
 from __future__ import annotations
@@ -12,15 +13,20 @@ from pathlib import Path
 
 import typer
 
-from printability.cli.common import choices_help, spec_epilog, stop_signals_raise
+from printability.cli.common import (
+    choices_help,
+    spec_epilog,
+    stage_progress,
+    stop_signals_raise,
+)
 from printability.options import E_POLICIES, FEED_POLICIES, SERVER_POLICIES
 
 __all__ = ["postprocess_command", "register"]
 
 
 def postprocess_command(
-    gcode: Path = typer.Argument(..., help="The slicer's G-code file (rewritten in place "  # noqa: B008
-                                 "unless -o is given)."),
+    gcode: Path = typer.Argument(..., help="The slicer's G-code file, text or binary "  # noqa: B008
+                                 "(.bgcode; rewritten in place unless -o is given)."),
     nozzle: str | None = typer.Option(
         None, "--nozzle", "-n", metavar="SPEC",
         help="The nozzle: ellipse:major=0.8,minor=0.3, rect:w=0.8,h=0.3, circle:d=0.4, "
@@ -59,6 +65,9 @@ def postprocess_command(
                                 help="Threads (0: one per CPU core, at most 4); the output is "
                                      "the same on any number."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
+    progress: bool = typer.Option(True, "--progress/--no-progress",
+                                  help="Show the stage and the layers planned on stderr (in a "
+                                       "terminal)."),
     server: str = typer.Option(
         "use", "--server",
         help=choices_help(SERVER_POLICIES, "Hand the run to `printability serve`, which "
@@ -77,8 +86,9 @@ def postprocess_command(
         filament_diameter=filament_diameter, layer_height=layer_height, output_name=output_name,
         workers=workers or None, allow_empty=allow_empty,
     )
-    with stop_signals_raise(f"{gcode} is unchanged"):
-        res = postprocess_file(gcode, options=opts, output=output)
+    with stop_signals_raise(f"{gcode} is unchanged"), \
+            stage_progress(enabled=progress and not quiet) as on_progress:
+        res = postprocess_file(gcode, options=opts, output=output, on_progress=on_progress)
     if quiet:
         return
     if res.already_processed:
@@ -90,6 +100,8 @@ def postprocess_command(
         f"{res.split_moves} moves shortened and {res.dropped_moves} dropped "
         f"({res.dropped_length:.2f} mm not printed); {res.elapsed:.2f} s"
     )
+    if res.binary:
+        typer.echo(f"  written as {res.binary}, as it came (lines counted in its G-code)")
     if res.print_time_in and res.print_time_out is not None:
         from gcode.printtime import format_duration
 
