@@ -6,6 +6,7 @@ from __future__ import annotations
 from printability.base.options import *  # noqa: F403
 from printability.base.options import (  # noqa: F401
     BEAD_MODELS,
+    CORNER_PIECES,
     E_POLICIES,
     ENDSTOP_POLICIES,
     ENGINES,

@@ -14,6 +14,7 @@ from printability.base.errors import UnknownOptionError, excerpt
 
 __all__ = [
     "BEAD_MODELS",
+    "CORNER_PIECES",
     "ENDSTOP_POLICIES",
     "ENGINES",
     "EXTRUDER_ERROR_POLICIES",
@@ -236,6 +237,14 @@ SERVER_POLICIES = _reg(
     off="always run here",
 )
 
+CORNER_PIECES = _reg(
+    "corner-piece policy",
+    drop="leave out the short pieces beside an outer wall's corners that need a turn of their "
+    "own (at most one bead width each, counted as lost): a turn standing still is a full stop "
+    "on real firmware",
+    keep="print every piece that fits, each with its own turn (slower to print)",
+)
+
 BEAD_MODELS = _reg(
     "bead model",
     rounded="rectangle with semicircular ends, area h(w - h) + pi h^2/4 (Slic3r/PrusaSlicer)",
@@ -260,5 +269,6 @@ REGISTRIES: dict[str, Registry] = {
         ENDSTOP_POLICIES,
         SIM_CLOCKS,
         SERVER_POLICIES,
+        CORNER_PIECES,
     )
 }

@@ -19,7 +19,7 @@ from printability.cli.common import (
     stage_progress,
     stop_signals_raise,
 )
-from printability.options import E_POLICIES, FEED_POLICIES, SERVER_POLICIES
+from printability.options import CORNER_PIECES, E_POLICIES, FEED_POLICIES, SERVER_POLICIES
 
 __all__ = ["postprocess_command", "register"]
 
@@ -51,6 +51,10 @@ def postprocess_command(
                                      help="Write the file even when the nozzle prints none "
                                           "of the part (by default: an error, file "
                                           "untouched)."),
+    corner_pieces: str = typer.Option(
+        "drop", "--corner-pieces",
+        help=choices_help(CORNER_PIECES, "What to do with the short pieces beside an outer "
+                                         "wall's corners that need a turn of their own.")),
     e_policy: str = typer.Option("width", "--e-policy",
                                  help=choices_help(E_POLICIES, "How E follows the bead width.")),
     filament_diameter: float | None = typer.Option(None, "--filament-diameter",
@@ -75,6 +79,7 @@ def postprocess_command(
 ) -> None:
     """Choose the nozzle angle of every extruding move so that nothing lands outside the part
     and the bead width matches the slicer's plan; keep every other line byte for byte."""
+    from printability.motion.orientation import OrientationOptions
     from printability.postprocess import PostprocessOptions, postprocess_file
 
     SERVER_POLICIES.check(server)  # the hand-over was decided before this (server_client)
@@ -85,6 +90,9 @@ def postprocess_command(
         letter=letter, unwind=unwind, e_policy=E_POLICIES.check(e_policy),
         filament_diameter=filament_diameter, layer_height=layer_height, output_name=output_name,
         workers=workers or None, allow_empty=allow_empty,
+        orientation=OrientationOptions(
+            side_piece_widths=0.0 if CORNER_PIECES.check(corner_pieces) == "keep"
+            else OrientationOptions().side_piece_widths),
     )
     with stop_signals_raise(f"{gcode} is unchanged"), \
             stage_progress(enabled=progress and not quiet) as on_progress:

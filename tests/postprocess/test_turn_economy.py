@@ -145,3 +145,28 @@ def test_left_out_corner_pieces_are_counted_as_lost():
     # each left-out piece is at most one planned width (0.45 mm here) long
     split = sum(r.split_moves for r in res.layers)
     assert lost - lost_keep <= 2 * split * 0.5 + 1e-9
+
+
+def test_the_cli_keeps_corner_pieces_on_request(tmp_path):
+    """``--corner-pieces keep`` prints every piece that fits (more turns, less lost);
+    the default leaves them out; a wrong value is the registry's one-paragraph error."""
+    import subprocess
+    import sys
+
+    runs = {}
+    for policy in ("drop", "keep"):
+        out = tmp_path / f"{policy}.gcode"
+        r = subprocess.run([sys.executable, "-m", "printability", "postprocess", str(PART),
+                            "-n", ELLIPSE, "-m", "ttr-klipper", "-o", str(out), "-q",
+                            "--server", "off", "--corner-pieces", policy],
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+        runs[policy] = out.read_bytes()
+    stops = {k: sum(1 for ln in v.splitlines() if ln.startswith(b"G1 C")) for k, v in runs.items()}
+    assert stops["drop"] < stops["keep"]
+    bad = subprocess.run([sys.executable, "-m", "printability", "postprocess", str(PART),
+                          "-n", ELLIPSE, "-o", str(tmp_path / "x.gcode"), "--server", "off",
+                          "--corner-pieces", "sometimes"], capture_output=True, text=True,
+                         timeout=600)
+    assert bad.returncode != 0 and "Traceback" not in bad.stderr
+    assert "corner-piece policy" in bad.stderr
