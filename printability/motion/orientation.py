@@ -691,6 +691,16 @@ def _turning_fits(target, pieces, a, b, phi0, phi1, *, workers=1):
     return np.logical_and.reduceat(ok, np.cumsum(m) - m)
 
 
+def _longest_piece(pm: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """Per piece row (rows sorted by move ``pm``), the row of its move's longest piece
+    (the first of equals). O(rows)."""
+    npc = len(pm)
+    lo = np.flatnonzero(np.concatenate([[True], pm[1:] != pm[:-1]]))
+    best = lo + np.array([int(np.argmax(span[a:b])) for a, b in
+                          zip(lo.tolist(), [*lo[1:].tolist(), npc], strict=True)], np.int64)
+    return np.repeat(best, np.diff(np.append(lo, npc)))
+
+
 def _align_pieces(rows, direction, widths, per, target, pieces, p0, p1, beta, wtab, options, *,
                   workers=1):
     """The pieces of each split move next to its longest one take that one's orientation
@@ -704,12 +714,7 @@ def _align_pieces(rows, direction, widths, per, target, pieces, p0, p1, beta, wt
     npc = len(pm)
     if npc < 2:
         return rows
-    span = t1 - t0
-    # the longest piece of each move (the first of equals)
-    lo = np.flatnonzero(np.concatenate([[True], pm[1:] != pm[:-1]]))
-    best = lo + np.array([int(np.argmax(span[a:b])) for a, b in
-                          zip(lo.tolist(), [*lo[1:].tolist(), npc], strict=True)], np.int64)
-    anchor = np.repeat(best, np.diff(np.append(lo, npc)))
+    anchor = _longest_piece(pm, t1 - t0)
     r = np.arange(npc)
     near = (np.abs(r - anchor) == 1)
     target_a = pa[anchor]
@@ -761,10 +766,7 @@ def _drop_side_pieces(rows, widths, p0, p1, per, options):
     if k <= 0 or npc < 2:
         return rows
     span = t1 - t0
-    lo = np.flatnonzero(np.concatenate([[True], pm[1:] != pm[:-1]]))
-    best = lo + np.array([int(np.argmax(span[a:b])) for a, b in
-                          zip(lo.tolist(), [*lo[1:].tolist(), npc], strict=True)], np.int64)
-    anchor = np.repeat(best, np.diff(np.append(lo, npc)))
+    anchor = _longest_piece(pm, span)
     length = span * np.hypot(*(p1[pm] - p0[pm]).T)
     w = np.asarray(widths, dtype=float)[pm]
     limit = k * np.where(np.isfinite(w), w, 0.0)
