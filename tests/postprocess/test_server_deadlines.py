@@ -190,8 +190,11 @@ def _status_reply(address: str) -> dict | None:
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as c:
         c.settimeout(HANG)
         c.connect(address)
-        send_message(c, {"protocol": PROTOCOL, "version": server_client.__version__,
-                         "op": "status"})
+        try:
+            send_message(c, {"protocol": PROTOCOL, "version": server_client.__version__,
+                             "op": "status"})
+        except (BrokenPipeError, ConnectionResetError):
+            pass  # a busy server writes its refusal and closes, maybe before the request
         return read_message(c, limit=1 << 20, deadline=time.monotonic() + HANG)
 
 
