@@ -160,6 +160,13 @@ class GCodeFile:
         cats = np.array([*self.feature_categories, self._before_first_feature()], dtype=object)
         return cats[self.moves["feature"]]
 
+    def moves_in(self, categories) -> np.ndarray:
+        """Per move, True where its feature's category is one of ``categories``: one test
+        per feature, then a gather (a few features, up to millions of moves)."""
+        names = [*self.feature_categories, self._before_first_feature()]
+        table = np.array([c in categories for c in names], dtype=bool)
+        return table[self.moves["feature"]]
+
     def _before_first_feature(self) -> str:
         # Moves before any feature comment are start G-code (purge lines...)
         # in files that have feature comments at all.

@@ -413,17 +413,13 @@ def _counted(batches: Iterator[tuple], total: int) -> Iterator[tuple]:
 def _part_mask(g) -> np.ndarray:
     """Extrusions that belong to the part (not skirt, support, purge, wipe...)."""
     m = g.moves
-    cats = g.feature_category_of_moves()
-    part = np.array([c not in NON_PART_CATEGORIES for c in cats], dtype=bool)
-    return m["is_extrusion"] & part & ~m["wipe"] & (m["layer"] >= 0)
+    return m["is_extrusion"] & ~g.moves_in(NON_PART_CATEGORIES) & ~m["wipe"] & (m["layer"] >= 0)
 
 
 def _interior_mask(g, seg_move: np.ndarray) -> np.ndarray:
     """Per chord, True where its feature's bead edges are not the part's surface
     (:data:`gcode.dialects.INTERIOR_CATEGORIES`)."""
-    cats = g.feature_category_of_moves()
-    interior = np.array([c in INTERIOR_CATEGORIES for c in cats], dtype=bool)
-    return interior[seg_move] if len(interior) else np.zeros(len(seg_move), dtype=bool)
+    return g.moves_in(INTERIOR_CATEGORIES)[seg_move]
 
 
 def postprocess_bytes(

@@ -71,8 +71,7 @@ def extrusion_chords(g, *, letter: str = "C", part_only: bool = True) -> np.ndar
     c0 = np.where(m["line"] > 0, c_after[np.maximum(m["line"] - 1, 0)], 0.0)
     keep = m["is_extrusion"] & (m["layer"] >= 0) & ~m["wipe"]
     if part_only:
-        cats = g.feature_category_of_moves()
-        keep &= ~np.isin(cats, list(NON_PART_CATEGORIES))
+        keep &= ~g.moves_in(NON_PART_CATEGORIES)
     sel = np.flatnonzero(keep)
     seg = g.segments(moves=m[sel])
     mv = sel[seg["move"]]

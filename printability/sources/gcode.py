@@ -265,8 +265,7 @@ def _layer_beads(
     model = resolve_bead_model(g, bead_model)
 
     m = g.moves
-    cats = g.feature_category_of_moves()
-    keep = m["is_extrusion"] & (m["layer"] >= 0) & ~np.isin(cats, list(excl)) & ~m["wipe"]
+    keep = m["is_extrusion"] & (m["layer"] >= 0) & ~g.moves_in(excl) & ~m["wipe"]
     idx = np.flatnonzero(keep)
     seg = g.segments(settings=settings, moves=take_rows(m, idx))
     mv = idx[seg["move"]]  # row of g.moves of each segment
@@ -304,8 +303,7 @@ def layer_regions(
         g, settings=settings, filament_diameter=filament_diameter, bead_model=bead_model,
         use_width_comments=use_width_comments, exclude=exclude,
         max_width_factor=max_width_factor)
-    wall = np.isin(g.feature_category_of_moves()[mv], list(WALL_CATEGORIES)) if interior \
-        else None
+    wall = g.moves_in(WALL_CATEGORIES)[mv] if interior else None
 
     def one(li: int) -> tuple[int, object, dict]:
         a, b = bounds[li], bounds[li + 1]
