@@ -17,8 +17,10 @@ Usage::
 
     python benchmarks/bench_raster.py [--data PATH] [--angles-step DEG] [--resolution MM]
 
-Prints times, the ratio and peak memory. Not a test: nothing is asserted on
-time; the pixel comparison exits with status 1 on a mismatch.
+Prints times, the ratio and peak memory, and the engine with and without its band
+settling below the pixel (:mod:`printability.mmc._band`, issue #26; the OpenCV
+comparison is of the three passes, on the same pixels either way). Not a test: nothing
+is asserted on time; the pixel comparison exits with status 1 on a mismatch.
 """
 
 from __future__ import annotations
@@ -132,6 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     res = mmc_raster(region, nozzle, machine, settings=settings)
     t_engine = time.perf_counter() - t0
+    # the same without the band settling below the pixel (issue #26): the raster part alone
+    t0 = time.perf_counter()
+    plain = mmc_raster(region, nozzle, machine, settings=settings, settle_band=False)
+    t_plain = time.perf_counter() - t0
     rss_engine = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     # memory in a second, untimed run (tracemalloc slows allocation-heavy code down)
     tracemalloc.start()
@@ -166,7 +172,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{res.lost_area_bounds[1]:.3f}] ({100 * res.lost_fraction:.2f} %), "
           f"{res.components.count} components; "
           f"P stored in {res.motion.packed.nbytes / 2**20:.1f} MiB")
+    print(f"  without the band settling: [{plain.lost_area_bounds[0]:.3f}, "
+          f"{plain.lost_area_bounds[1]:.3f}], estimate {plain.lost_area:.3f} mm²")
     print(f"printability mmc_raster, end to end        {t_engine:8.2f} s")
+    print(f"  without the band settling                 {t_plain:8.2f} s")
     print(f"  of which rasterisation + kernels          {t_prepare:8.2f} s")
     print(f"printability openings alone (3 passes)      {t_ours:8.2f} s")
     print(f"OpenCV erode+dilate per angle (3 passes)    {t_cv:8.2f} s   "

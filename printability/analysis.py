@@ -35,9 +35,11 @@ from printability.machine import Machine, parse_machine
 from printability.mmc import MMCResult, choose_engine, compute_mmc
 from printability.nozzle import Nozzle, parse_nozzle
 from printability.options import ENGINES
+from printability.ranking import Totals, certified_ranks, ties, totals, uses_volume
 from printability.settings import DEFAULT_SETTINGS, Settings
 
-__all__ = ["RASTER_WORK_BUDGET", "Analysis", "LayerOutcome", "NozzleAnalysis", "analyze",
+__all__ = ["DEFAULT_REFINE_BUDGET", "MAX_REFINE_ROUNDS", "RASTER_WORK_BUDGET", "Analysis",
+           "BoundTolerance", "LayerOutcome", "NozzleAnalysis", "Refinement", "analyze",
            "raster_work", "select_layers"]
 
 
@@ -62,6 +64,14 @@ class LayerOutcome:
     elapsed: float
     result: MMCResult | None = field(default=None, compare=False, repr=False)
     note: str = ""
+    resolution: float = 0.0
+    angle_step: float = 0.0
+    refinements: int = 0
+
+    @property
+    def width(self) -> float:
+        """hi − lo of the certified lost-area interval, mm²."""
+        return self.lost_area_bounds[1] - self.lost_area_bounds[0]
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -73,18 +83,43 @@ class LayerOutcome:
             "lost_area": self.lost_area,
             "lost_area_bounds": list(self.lost_area_bounds),
             "components": self.components,
+            "engine": self.engine,
+            **({"resolution": self.resolution} if self.resolution else {}),
+            **({"angle_step": self.angle_step} if self.angle_step else {}),
+            **({"refinements": self.refinements} if self.refinements else {}),
             **({"note": self.note} if self.note else {}),
         }
 
 
 @dataclass(frozen=True)
 class NozzleAnalysis:
-    """One nozzle over all layers; areas in mm², volumes in mm³ (Σ area·height)."""
+    """One nozzle over all layers; areas in mm², volumes in mm³ (Σ area·height).
+
+    ``rank`` is the place in the list (by estimate); ``rank_range`` the ranks the
+    certified bounds allow and ``tied_with`` the nozzles whose interval overlaps
+    this one's (:mod:`printability.ranking`). ``allowed_width`` is the width hi − lo
+    a ``bound_tolerance`` asked for (in the unit of :meth:`totals`), None without one.
+    """
 
     nozzle: Nozzle
     layers: tuple[LayerOutcome, ...]
     rank: int = 0
     build_time: float = 0.0
+    rank_range: tuple[int, int] = (0, 0)
+    tied_with: tuple[str, ...] = ()
+    allowed_width: float | None = None
+
+    def totals(self, *, volume: bool | None = None) -> Totals:
+        """Target, lost and bounds in one unit (:func:`printability.ranking.totals`)."""
+        return totals(self.layers, volume=volume)
+
+    @property
+    def tolerance_met(self) -> bool | None:
+        """Whether hi − lo is within ``allowed_width`` (None without a tolerance)."""
+        if self.allowed_width is None:
+            return None
+        lo, hi = self.totals().lost_bounds
+        return hi - lo <= self.allowed_width * (1 + 1e-12)
 
     @property
     def target_area(self) -> float:
@@ -121,6 +156,9 @@ class NozzleAnalysis:
         out: dict[str, Any] = {
             "spec": self.nozzle.spec,
             "rank": self.rank,
+            "rank_range": list(self.rank_range),
+            "rank_certain": self.rank_range[0] == self.rank_range[1],
+            "tied_with": list(self.tied_with),
             "target_area": self.target_area,
             "as_built_area": self.as_built_area,
             "lost_area": self.lost_area,
@@ -131,11 +169,18 @@ class NozzleAnalysis:
             "layers": [o.to_json() for o in self.layers],
         }
         if multi_layer:
+            vol = totals(self.layers, volume=True)
             out.update(
                 target_volume=self.volume("target_area"),
                 as_built_volume=self.volume("as_built_area"),
                 lost_volume=self.volume("lost_area"),
+                lost_volume_bounds=list(vol.lost_bounds),
             )
+        if self.allowed_width is not None:
+            t = self.totals()
+            out["bound_tolerance"] = {
+                "quantity": t.quantity, "unit": t.unit, "allowed_width": self.allowed_width,
+                "width": t.lost_bounds[1] - t.lost_bounds[0], "met": self.tolerance_met}
         return out
 
 
@@ -150,10 +195,24 @@ class Analysis:
     layers: LayerStack
     nozzles: tuple[NozzleAnalysis, ...]
     elapsed: float
+    refinement: Refinement | None = None
 
     @property
     def multi_layer(self) -> bool:
         return len(self.layers) > 1
+
+    @property
+    def quantity(self) -> str:
+        """``"volume"`` (mm³) or ``"area"`` (mm²): what the ranking compares."""
+        return "volume" if uses_volume([lay.height for lay in self.layers]) else "area"
+
+    @property
+    def ties(self) -> tuple[tuple[str, str], ...]:
+        """Pairs of nozzle SPECs whose certified intervals overlap: not ranked for sure."""
+        vol = self.quantity == "volume"
+        b = [n.totals(volume=vol).lost_bounds for n in self.nozzles]
+        return tuple((self.nozzles[i].nozzle.spec, self.nozzles[j].nozzle.spec)
+                     for i, j in ties(b))
 
     def to_json(self) -> dict[str, Any]:
         """The JSON document of DESIGN.md §4 (plain dicts, lists and floats)."""
@@ -168,8 +227,22 @@ class Analysis:
             **({"selected_layers": self.layers.meta["selected_layers"]}
                if "selected_layers" in self.layers.meta else {}),
             "elapsed_s": self.elapsed,
+            "ranking": {
+                "quantity": self.quantity,
+                "unit": "mm³" if self.quantity == "volume" else "mm²",
+                "certain": not self.ties,
+                "ties": [list(t) for t in self.ties],
+            },
+            **({"refinement": self.refinement.to_json()} if self.refinement is not None else {}),
             "nozzles": [n.to_json(multi_layer=self.multi_layer) for n in self.nozzles],
         }
+
+
+DEFAULT_REFINE_BUDGET = 4.0
+"""Work tie separation may add, as a multiple of the first pass's estimated work."""
+
+MAX_REFINE_ROUNDS = 8
+"""Most refinement rounds of :func:`analyze` (each halves the step of the layers it refines)."""
 
 
 RASTER_WORK_BUDGET = 5e10
@@ -334,7 +407,8 @@ def _outcome(layer: Layer, nozzle: Nozzle, machine: Machine, engine: str,
                             note="nozzle larger than the layer: nothing printable")
     return LayerOutcome(layer.index, layer.z, layer.height, r.target_area, r.as_built_area,
                         r.lost_area, (float(r.lost_area_bounds[0]), float(r.lost_area_bounds[1])),
-                        r.components.count, r.engine, r.elapsed, r if keep else None)
+                        r.components.count, r.engine, r.elapsed, r if keep else None,
+                        resolution=float(r.resolution), angle_step=float(r.angle_step))
 
 
 def _run_task(args: tuple) -> LayerOutcome:
@@ -352,6 +426,10 @@ def analyze(
     scheduler: str | None = None,
     on_progress: Callable[[int, int], None] | None = None,
     max_raster_work: float = RASTER_WORK_BUDGET,
+    bound_tolerance: BoundTolerance | str | float | None = None,
+    separate_ties: bool = False,
+    refine_budget: float = DEFAULT_REFINE_BUDGET,
+    max_rounds: int = MAX_REFINE_ROUNDS,
 ) -> Analysis:
     """Analyse every layer for every nozzle and rank the nozzles.
 
@@ -377,26 +455,50 @@ def analyze(
         Called with (done, total) after each layer×nozzle task.
     max_raster_work
         Most work a layer × nozzle may ask of the raster engine (see
-        :func:`raster_work`); checked for every task before any runs.
+        :func:`raster_work`); checked for every task before any runs, and for
+        every refinement before it runs.
+    bound_tolerance
+        Refine until every nozzle's certified interval of what it loses over the
+        part (mm² for one layer, mm³ for several: the ranking's unit) is at most
+        this wide: a :class:`BoundTolerance` or its text (``"0.5"`` absolute,
+        ``"5%"`` relative). None: no such goal.
+    separate_ties
+        Refine the nozzles whose certified intervals overlap until they separate,
+        within ``refine_budget``.
+    refine_budget
+        Most work tie separation may add, as a multiple of the first pass's
+        estimated work (a tolerance is not limited by it, only by the memory and
+        work guards).
+    max_rounds
+        Most refinement rounds (each refines some layers of some nozzles once).
 
     Returns
     -------
     Analysis
-        Nozzles ranked by lost area (volume for several layers), ties broken by
-        the build-time estimate.
+        Nozzles listed by lost area (volume for several layers), near-equal
+        estimates ordered by the build-time estimate; each with the ranks its
+        certified bounds allow. ``refinement`` says what refinement did and cost.
 
     Raises
     ------
     ResourceError
         A layer × nozzle would take the raster engine more than ``max_raster_work``
-        (the message gives the estimate and a resolution that fits).
+        (the message gives the estimate and a resolution that fits), or meeting
+        ``bound_tolerance`` would need more memory or work than allowed (refused
+        with the estimate before the refinement runs).
     """
     engine = ENGINES.check(engine)
     if not nozzles:
         raise InputError("analyze: give at least one nozzle (e.g. --nozzle circle:d=0.4)")
     nozs = [parse_nozzle(n) for n in nozzles]
     mach = parse_machine(machine)
+    tol = BoundTolerance.parse(bound_tolerance) if bound_tolerance is not None else None
+    if not (refine_budget >= 0 and math.isfinite(refine_budget)):
+        raise InputError(f"analyze: refine_budget must be a finite number ≥ 0; got "
+                         f"{refine_budget!r}")
     _check_raster_work(layers, nozs, mach, engine, settings, max_raster_work)
+    if tol is not None and not tol.relative:
+        _precheck_tolerance(layers, nozs, mach, engine, settings, tol, max_raster_work)
     t0 = time.perf_counter()
     tasks = [(layer, noz, mach, engine, settings, keep_results) for noz in nozs for layer in layers]
     outcomes = list(_map(tasks, settings=settings, scheduler=scheduler, on_progress=on_progress))
@@ -404,8 +506,14 @@ def analyze(
     n_layers = len(layers)
     for i, noz in enumerate(nozs):
         per_nozzle.append(NozzleAnalysis(noz, tuple(outcomes[i * n_layers:(i + 1) * n_layers])))
-    ranked = _rank(per_nozzle, mach)
-    used = {o.engine for o in outcomes}
+    refinement = None
+    if tol is not None or separate_ties:
+        per_nozzle, refinement = _refine(
+            per_nozzle, layers, mach, settings, tol=tol, separate=separate_ties,
+            budget=refine_budget, max_rounds=max_rounds, max_work=max_raster_work,
+            keep=keep_results, scheduler=scheduler, on_progress=on_progress)
+    ranked = _rank(per_nozzle, mach, layers)
+    used = {o.engine for n in ranked for o in n.layers}
     return Analysis(
         input=layers.source,
         machine=mach,
@@ -414,20 +522,341 @@ def analyze(
         layers=layers,
         nozzles=tuple(ranked),
         elapsed=time.perf_counter() - t0,
+        refinement=refinement,
     )
 
 
-def _rank(per_nozzle: list[NozzleAnalysis], machine: Machine) -> list[NozzleAnalysis]:
+def _rank(per_nozzle: list[NozzleAnalysis], machine: Machine, layers: LayerStack,
+          ) -> list[NozzleAnalysis]:
+    """Order by the estimate in the ranking's unit; certified rank ranges and ties."""
     from printability.ranking import DEFAULT_SPEED, bead_width_for_time, rank_order
 
+    volume = uses_volume([lay.height for lay in layers])
     timed = []
     for n in per_nozzle:
         w = bead_width_for_time(n.nozzle, rotary=machine.has_rotary and not n.nozzle.is_round)
         timed.append(replace(n, build_time=n.as_built_area / (w * DEFAULT_SPEED)))
-    multi = any(o.height > 0 for n in timed for o in n.layers)
-    lost = [n.volume("lost_area") if multi else n.lost_area for n in timed]
-    ordered = [timed[i] for i in rank_order(lost, [n.build_time for n in timed])]
-    return [replace(n, rank=i + 1) for i, n in enumerate(ordered)]
+    tots = [n.totals(volume=volume) for n in timed]
+    order = rank_order([t.lost for t in tots], [n.build_time for n in timed])
+    bounds = [t.lost_bounds for t in tots]
+    ranges = certified_ranks(bounds)
+    tied: dict[int, list[str]] = {i: [] for i in range(len(timed))}
+    for i, j in ties(bounds):
+        tied[i].append(timed[j].nozzle.spec)
+        tied[j].append(timed[i].nozzle.spec)
+    return [replace(timed[i], rank=k + 1, rank_range=ranges[i], tied_with=tuple(tied[i]))
+            for k, i in enumerate(order)]
+
+
+# --------------------------------------------------------------------------- refinement
+
+@dataclass(frozen=True)
+class BoundTolerance:
+    """How wide a nozzle's certified interval of lost material may be, over the part.
+
+    Attributes
+    ----------
+    value
+        Absolute: the width hi − lo in the ranking's unit (mm² for one layer, mm³
+        for several). Relative: a fraction r of the estimated lost amount, with a
+        floor of r/100 of the part's size (so ``5%`` allows 5 % of the loss or
+        0.05 % of the part, whichever is larger: a part that loses almost nothing
+        can still meet it).
+    relative
+        Whether ``value`` is a fraction.
+    text
+        As the user wrote it.
+    """
+
+    value: float
+    relative: bool
+    text: str
+
+    @classmethod
+    def parse(cls, spec: BoundTolerance | str | float) -> BoundTolerance:
+        """From ``0.5`` / ``"0.5"`` (absolute) or ``"5%"`` (relative).
+
+        Raises
+        ------
+        InputError
+            Not a positive finite number (percentages in (0, 100]).
+        """
+        if isinstance(spec, BoundTolerance):
+            return spec
+        text = str(spec).strip()
+        relative = text.endswith("%")
+        try:
+            value = float(text[:-1] if relative else text)
+        except ValueError:
+            value = math.nan
+        if relative:
+            value /= 100.0
+        if not (math.isfinite(value) and value > 0 and (not relative or value <= 1.0)):
+            raise InputError(
+                f"bound tolerance {text[:40]!r}: expected a positive width in the ranking's "
+                "unit (mm² for one layer, mm³ for several), e.g. 0.5, or a percentage of "
+                "the lost amount in (0, 100], e.g. 5%")
+        return cls(value, relative, text)
+
+    def allowed(self, t: Totals) -> float:
+        """The width hi − lo allowed for a nozzle with these totals (its unit)."""
+        if self.relative:
+            return max(self.value * t.lost, self.value * 0.01 * t.target)
+        return self.value
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """What the refinement of :func:`analyze` did and what it cost.
+
+    Attributes
+    ----------
+    tolerance
+        The bound tolerance asked for (text), or None.
+    separate_ties
+        Whether overlapping intervals were refined.
+    rounds, tasks
+        Refinement rounds run and layer × nozzle computations they made.
+    work
+        Their estimated work (units of :func:`raster_work`).
+    elapsed
+        Wall time of the refinement, s.
+    met
+        Every nozzle's width within its tolerance (None without a tolerance).
+    stopped
+        Why refinement ended: ``met``, ``separated``, ``nothing to refine``, ``budget``
+        (tie separation's work budget), ``finest`` (no finer setting), ``limit`` (the
+        memory or work guard), or ``rounds``.
+    notes
+        Human-readable remarks.
+    """
+
+    tolerance: str | None
+    separate_ties: bool
+    rounds: int
+    tasks: int
+    work: float
+    elapsed: float
+    met: bool | None
+    stopped: str
+    notes: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {"tolerance": self.tolerance, "separate_ties": self.separate_ties,
+                "rounds": self.rounds, "tasks": self.tasks, "work": self.work,
+                "elapsed_s": self.elapsed, "met": self.met, "stopped": self.stopped,
+                "notes": list(self.notes)}
+
+
+def _weights(layers: Sequence[LayerOutcome], volume: bool) -> list[float]:
+    return [o.height if volume else 1.0 for o in layers]
+
+
+def _plan_steps(width: float, allowed: float) -> int:
+    """Halvings of ``width`` needed to reach ``allowed`` (the raster's width ∝ h)."""
+    if width <= allowed or allowed <= 0:
+        return 0 if width <= allowed else 60
+    return math.ceil(math.log2(width / allowed) - 1e-12)
+
+
+def _refuse_plan(what: str, layer: Layer, noz: Nozzle, mach: Machine, engine: str,
+                 settings: Settings, steps: int, max_work: float) -> None:
+    """Refuse (ResourceError) when ``steps`` refinements of this layer would exceed a guard."""
+    from printability.mmc.refine import refined_settings, refinement_work
+
+    s = settings
+    for _ in range(steps):
+        nxt = refined_settings(engine, noz, mach, s)
+        if nxt is None:
+            break
+        s = nxt
+    if s is settings:
+        return
+    work, memory = refinement_work(layer.region, noz, mach, engine, s)
+    step = f", angle step {s.angle_step:g}°" if s.angle_step is not None else ""
+    if memory > settings.max_memory or work > max_work:
+        minutes = work * _SECONDS_PER_WORK / 60
+        raise ResourceError(
+            f"{what}: nozzle {noz.spec} would need about {steps} refinement(s) of layer "
+            f"{layer.index} (z={layer.z:g} mm), to --resolution {s.resolution:g} mm{step}: "
+            f"about {memory / 2**20:,.0f} MiB (allowed {settings.max_memory / 2**20:,.0f} MiB) "
+            f"and {work:.2g} operations, roughly {minutes:,.1f} minutes (allowed {max_work:.2g}); "
+            "nothing was refined. Ask for a wider tolerance, or raise --max-memory")
+
+
+def _precheck_tolerance(layers: LayerStack, nozs: Sequence[Nozzle], mach: Machine, engine: str,
+                        settings: Settings, tol: BoundTolerance, max_work: float) -> None:
+    """Refuse an absolute tolerance that the raster engine cannot meet within the guards.
+
+    Before anything runs, the width is predicted from the boundary length: the plain
+    raster engine's interval is about 2·h wide per mm of boundary (see
+    :mod:`printability.mmc.raster`); each refinement halves h. Nozzles whose band the
+    engine settles below the pixel (one circle or ellipse) are checked after the first
+    pass instead, from the width it measured.
+    """
+    from printability.mmc.raster import _band_settles
+
+    volume = uses_volume([lay.height for lay in layers])
+    for noz in nozs:
+        if _band_settles(noz):
+            # its upper bound is settled below the pixel: the width is no longer 2·h per mm
+            # of boundary, and is only known after the first pass (checked then)
+            continue
+        widths = []
+        for layer in layers:
+            eng = choose_engine(noz, mach, layer.region) if engine == "auto" else engine
+            if eng != "raster":
+                continue
+            w = 2.0 * settings.resolution * float(layer.region.length)
+            widths.append((w * (layer.height if volume else 1.0), w, layer, eng))
+        if not widths:
+            continue
+        total = sum(w for w, *_ in widths)
+        steps = _plan_steps(total, tol.value)
+        if steps:
+            _, _, layer, eng = max(widths, key=lambda t: t[0])
+            _refuse_plan(f"--bound-tolerance {tol.text}", layer, noz, mach, eng, settings,
+                         steps, max_work)
+
+
+def _choose_layers(layers: Sequence[LayerOutcome], weights: Sequence[float], reduce_by: float,
+                   ) -> list[int]:
+    """Layers to refine so that their widths, halved, reduce the total by ``reduce_by``."""
+    order = sorted(range(len(layers)), key=lambda k: -layers[k].width * weights[k])
+    chosen, gain = [], 0.0
+    for k in order:
+        if layers[k].width * weights[k] <= 0:
+            break
+        chosen.append(k)
+        gain += 0.5 * layers[k].width * weights[k]
+        if gain >= reduce_by:
+            break
+    return chosen
+
+
+def _merge(old: LayerOutcome, new: LayerOutcome) -> LayerOutcome:
+    """A layer's refined outcome: the intersection of both certified intervals."""
+    from printability.mmc.refine import merge_bounds
+
+    lo, hi = merge_bounds(old.lost_area_bounds, new.lost_area_bounds,
+                          target_area=old.target_area)
+    lost = min(max(new.lost_area, lo), hi)
+    return replace(new, lost_area=lost, as_built_area=old.target_area - lost,
+                   lost_area_bounds=(lo, hi), elapsed=old.elapsed + new.elapsed,
+                   refinements=old.refinements + 1)
+
+
+def _refine(per_nozzle: list[NozzleAnalysis], layers: LayerStack, mach: Machine,
+            settings: Settings, *, tol: BoundTolerance | None, separate: bool, budget: float,
+            max_rounds: int, max_work: float, keep: bool, scheduler: str | None,
+            on_progress: Callable[[int, int], None] | None,
+            ) -> tuple[list[NozzleAnalysis], Refinement]:
+    """Refine layers of some nozzles until the tolerance is met and/or ties separate.
+
+    Each round picks, per nozzle that needs it, the layers whose widths weigh most
+    (:func:`_choose_layers`), computes them again at the next finer settings
+    (:func:`printability.mmc.refine.refined_settings`) and intersects the intervals.
+    A tolerance whose predicted cost exceeds the memory or work guard is refused
+    before its round runs (:func:`_refuse_plan`).
+    """
+    from printability.mmc.refine import refined_settings, refinement_work
+
+    t0 = time.perf_counter()
+    volume = uses_volume([lay.height for lay in layers])
+    per = list(per_nozzle)
+    cur = {(i, k): settings for i in range(len(per)) for k in range(len(layers))}
+    first_work = sum(refinement_work(layers[k].region, per[i].nozzle, mach,
+                                     per[i].layers[k].engine, settings)[0]
+                     for i in range(len(per)) for k in range(len(layers)))
+    spent, rounds, n_tasks = 0.0, 0, 0
+    notes: list[str] = []
+    stopped = "nothing to refine"
+    blocked: set[tuple[int, int]] = set()
+    while True:
+        tots = [n.totals(volume=volume) for n in per]
+        want: dict[int, float] = {}  # nozzle -> total width reduction wanted
+        for i, t in enumerate(tots):
+            if tol is not None:
+                width = t.lost_bounds[1] - t.lost_bounds[0]
+                allowed = tol.allowed(t)
+                if width > allowed * (1 + 1e-12):
+                    want[i] = max(want.get(i, 0.0), width - allowed)
+        tol_needed = bool(want)
+        pairs = []
+        if separate:
+            bounds = [t.lost_bounds for t in tots]
+            for i, j in ties(bounds):
+                wi = bounds[i][1] - bounds[i][0]
+                wj = bounds[j][1] - bounds[j][0]
+                floor = 1e-9 * max(tots[i].target, tots[j].target)
+                if wi <= floor and wj <= floor:
+                    continue  # equal to rounding: a true tie, broken by build time
+                overlap = min(bounds[i][1], bounds[j][1]) - max(bounds[i][0], bounds[j][0])
+                pairs.append((i, j))
+                for k, w in ((i, wi), (j, wj)):
+                    if w >= 0.25 * (wi + wj):
+                        want[k] = max(want.get(k, 0.0), min(w, overlap + 1e-12))
+        if not want:
+            stopped = "met" if tol is not None else ("separated" if separate else stopped)
+            break
+        if rounds >= max_rounds:
+            stopped = "rounds"
+            break
+        tasks, keys, round_work = [], [], 0.0
+        reasons = set()
+        for i, reduce_by in want.items():
+            n = per[i]
+            weights = _weights(n.layers, volume)
+            for k in _choose_layers(n.layers, weights, reduce_by):
+                if (i, k) in blocked:
+                    continue
+                o = n.layers[k]
+                nxt = refined_settings(o.engine, n.nozzle, mach, cur[(i, k)])
+                if nxt is None:
+                    blocked.add((i, k))
+                    reasons.add("finest")
+                    continue
+                if tol_needed and i in want and tol is not None:
+                    t = tots[i]
+                    steps = _plan_steps(t.lost_bounds[1] - t.lost_bounds[0], tol.allowed(t))
+                    _refuse_plan(f"--bound-tolerance {tol.text}", layers[k], n.nozzle, mach,
+                                 o.engine, cur[(i, k)], steps, max_work)
+                work, memory = refinement_work(layers[k].region, n.nozzle, mach, o.engine, nxt)
+                if memory > settings.max_memory or work > max_work:
+                    blocked.add((i, k))
+                    reasons.add("limit")
+                    notes.append(f"{n.nozzle.spec}, layer {o.index}: not refined past "
+                                 f"resolution {cur[(i, k)].resolution:g} mm (the next step "
+                                 f"needs about {memory / 2**20:,.0f} MiB, {work:.2g} work)")
+                    continue
+                only_ties = not (tol is not None and tol_needed)
+                if only_ties and spent + round_work + work > budget * first_work:
+                    reasons.add("budget")
+                    continue
+                tasks.append((layers[k], n.nozzle, mach, o.engine, nxt, keep))
+                keys.append((i, k, nxt))
+                round_work += work
+        if not tasks:
+            stopped = ("limit" if "limit" in reasons else "budget" if "budget" in reasons
+                       else "finest" if "finest" in reasons else "nothing to refine")
+            break
+        outs = list(_map(tasks, settings=settings, scheduler=scheduler, on_progress=on_progress))
+        for (i, k, nxt), new in zip(keys, outs, strict=True):
+            lay = list(per[i].layers)
+            lay[k] = _merge(lay[k], new)
+            per[i] = replace(per[i], layers=tuple(lay))
+            cur[(i, k)] = nxt
+        spent += round_work
+        rounds += 1
+        n_tasks += len(tasks)
+    met = None
+    if tol is not None:
+        per = [replace(n, allowed_width=tol.allowed(n.totals(volume=volume))) for n in per]
+        met = all(bool(n.tolerance_met) for n in per)
+    return per, Refinement(
+        tolerance=tol.text if tol is not None else None, separate_ties=separate, rounds=rounds,
+        tasks=n_tasks, work=spent, elapsed=time.perf_counter() - t0, met=met, stopped=stopped,
+        notes=tuple(dict.fromkeys(notes)))
 
 
 def _process_context() -> multiprocessing.context.BaseContext:

@@ -3,6 +3,22 @@
 DESIGN.md §2: ranking = ascending λ(G \\ S) (area for one layer, volume over
 layers), ties broken by an estimated build time.
 
+Certified ranks
+---------------
+Every engine reports, besides its estimate of the lost amount, an interval
+[lo, hi] certified to contain the exact value. The rows are listed by
+estimate, but the *rank a nozzle certainly has* is an interval too: nozzle i
+is certainly better than j when hi_i < lo_j (its worst case loses less than
+j's best case), so i's rank lies in
+
+    [1 + #{j : hi_j < lo_i},  n − #{j : lo_j > hi_i}]
+
+(:func:`certified_ranks`). When two nozzles' intervals overlap they are tied
+within the certified bounds: the ranking says so (``rank_range`` with two
+different ends, ``tied_with``) rather than claiming the order of their
+estimates; :func:`printability.analysis.analyze` can refine just those
+nozzles until their intervals separate.
+
 Build-time model
 ----------------
 The time to fill the as-built region S with beads laid side by side at a
@@ -34,8 +50,8 @@ from printability.errors import InputError
 from printability.mmc.result import MMCResult
 from printability.nozzle import Nozzle
 
-__all__ = ["DEFAULT_SPEED", "RankRow", "Totals", "bead_width_for_time", "rank", "rank_order",
-           "totals", "uses_volume"]
+__all__ = ["DEFAULT_SPEED", "RankRow", "Totals", "bead_width_for_time", "certified_ranks",
+           "rank", "rank_label", "rank_order", "ties", "totals", "uses_volume"]
 
 DEFAULT_SPEED = 40.0
 """Deposition speed of the build-time model, mm/s (a typical perimeter/infill speed)."""
@@ -71,6 +87,11 @@ class RankRow:
         Estimated time to deposit S, s.
     components
         Largest number of components of P over the layers.
+    rank_range
+        (best, worst): the ranks the certified bounds allow (:func:`certified_ranks`);
+        equal ends when the rank is certain.
+    tied_with
+        SPECs of the nozzles whose certified interval overlaps this one's.
     """
 
     rank: int
@@ -87,6 +108,13 @@ class RankRow:
     bead_width: float
     build_time: float
     components: int
+    rank_range: tuple[int, int] = (0, 0)
+    tied_with: tuple[str, ...] = ()
+
+    @property
+    def rank_certain(self) -> bool:
+        """Whether the certified bounds fix this rank (no other interval overlaps)."""
+        return self.rank_range[0] == self.rank_range[1]
 
 
 class _LayerAreas(Protocol):
@@ -191,6 +219,43 @@ def _layers_of(entry: MMCResult | Sequence[MMCResult], i: int) -> list[MMCResult
     return layers
 
 
+def certified_ranks(bounds: Sequence[tuple[float, float]]) -> list[tuple[int, int]]:
+    """The ranks each candidate can take given only certified intervals of what it loses.
+
+    Parameters
+    ----------
+    bounds
+        (lo, hi) per candidate, in one unit, each certified to contain the exact value.
+
+    Returns
+    -------
+    list of (best, worst)
+        Candidate i is certainly behind j when hi_j < lo_i and certainly ahead when
+        hi_i < lo_j; it can take any rank between 1 + (number certainly ahead) and n −
+        (number certainly behind). Intervals that merely touch (hi_j == lo_i) do not
+        separate: the exact values might be equal. Cost O(n²).
+    """
+    n = len(bounds)
+    out = []
+    for lo_i, hi_i in bounds:
+        ahead = sum(1 for lo_j, hi_j in bounds if hi_j < lo_i)
+        behind = sum(1 for lo_j, hi_j in bounds if lo_j > hi_i)
+        out.append((1 + ahead, n - behind))
+    return out
+
+
+def ties(bounds: Sequence[tuple[float, float]]) -> list[tuple[int, int]]:
+    """Pairs (i, j), i < j, whose certified intervals overlap (or touch): not separable."""
+    return [(i, j) for i in range(len(bounds)) for j in range(i + 1, len(bounds))
+            if bounds[j][0] <= bounds[i][1] and bounds[i][0] <= bounds[j][1]]
+
+
+def rank_label(rank_range: tuple[int, int]) -> str:
+    """``"2"`` for a certain rank, ``"1–3"`` when the certified bounds allow ranks 1 to 3."""
+    best, worst = rank_range
+    return str(best) if best == worst else f"{best}–{worst}"
+
+
 def rank_order(
     lost: Sequence[float],
     build_time: Sequence[float],
@@ -243,8 +308,9 @@ def rank(
     Returns
     -------
     tuple of RankRow
-        Best first; ``rank`` numbers 1, 2, ...; equal lost and time keep the
-        order of ``results``.
+        Best first (by estimate); ``rank`` numbers 1, 2, ...; equal lost and time
+        keep the order of ``results``. ``rank_range`` and ``tied_with`` say which
+        of these places the certified bounds actually establish (module docstring).
 
     Raises
     ------
@@ -289,4 +355,10 @@ def rank(
         ))
     ranked = rank_order([u["lost"] for u in unsorted], [u["build_time"] for u in unsorted],
                         tie_tolerance=tie_tolerance)
-    return tuple(RankRow(rank=n + 1, **unsorted[i]) for n, i in enumerate(ranked))
+    ranges = certified_ranks([u["lost_bounds"] for u in unsorted])
+    tied: dict[int, list[str]] = {i: [] for i in range(len(unsorted))}
+    for i, j in ties([u["lost_bounds"] for u in unsorted]):
+        tied[i].append(unsorted[j]["spec"])
+        tied[j].append(unsorted[i]["spec"])
+    return tuple(RankRow(rank=n + 1, **unsorted[i], rank_range=ranges[i],
+                         tied_with=tuple(tied[i])) for n, i in enumerate(ranked))

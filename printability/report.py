@@ -475,7 +475,7 @@ def write_report(analysis: Analysis, out_dir: str | Path) -> Path:
     Every file is written atomically. Returns the path of ``index.html``.
     """
     from printability.cli.common import write_atomic
-    from printability.ranking import totals, uses_volume
+    from printability.ranking import rank_label, totals, uses_volume
 
     plt = _pyplot()
     out = Path(out_dir)
@@ -487,8 +487,9 @@ def write_report(analysis: Analysis, out_dir: str | Path) -> Path:
         t = totals(n.layers, volume=volume)
         area = totals(n.layers, volume=False)
         lo, hi = t.lost_bounds
+        label = rank_label(n.rank_range) if n.rank_range != (0, 0) else str(n.rank)
         rows.append(
-            f"<tr><td>{n.rank}</td><td><code>{html.escape(n.nozzle.spec)}</code></td>"
+            f"<tr><td>{html.escape(label)}</td><td><code>{html.escape(n.nozzle.spec)}</code></td>"
             f"<td>{t.lost:.4g}</td><td>{100 * t.lost_fraction:.2f}</td>"
             f"<td>[{lo:.4g}, {hi:.4g}]</td>"
             + (f"<td>{area.lost:.4g}</td><td>[{area.lost_bounds[0]:.4g}, "
@@ -554,6 +555,18 @@ def write_report(analysis: Analysis, out_dir: str | Path) -> Path:
     what = ("Lost: the volume of G \\ S, each layer's lost area times its height, summed."
             if volume else "Lost: the area of G \\ S"
             + (", summed over the layers." if analysis.multi_layer else "."))
+    ties = ""
+    if analysis.ties:
+        ties = (" Ranks A–B: tied within the certified bounds (the intervals overlap, so the "
+                "order of the estimates is not certain): "
+                + "; ".join(f"{a} and {b}" for a, b in analysis.ties) + ".")
+    refined = ""
+    if analysis.refinement is not None:
+        from printability.cli.analyze import ranking_notes
+
+        refined = "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in
+                                   ranking_notes(analysis, suggest=False)
+                                   if not line.startswith("tied")) + "</ul>"
     uncertain_key = (f'<span style="background:{COLORS["uncertain"]}"></span>not proven '
                      "printed (outside a raster engine's certified inner S)" if any_inner else "")
     page = f"""<!doctype html>
@@ -576,7 +589,8 @@ by printability {__version__}.</p>
 {uncertain_key}
 <span style="background:{COLORS['p']}"></span>motion restriction P</p>
 <table><tr>{head}</tr>{''.join(rows)}</table>
-<p>{html.escape(what)} Bounds: the certified interval of that figure.</p>
+<p>{html.escape(what)} Bounds: the certified interval of that figure.{html.escape(ties)}</p>
+{refined}
 {overview}
 {per_layer}
 {''.join(sections)}

@@ -63,6 +63,20 @@ def analyze_command(
                                           help="Memory a computation may use, e.g. 512M or 8G "
                                                "(default: half the RAM, at most 16G); larger "
                                                "work is refused before it starts."),
+    bound_tolerance: str | None = typer.Option(
+        None, "--bound-tolerance", metavar="TOL",
+        help="Refine until each nozzle's certified interval [lo, hi] of what it loses is at "
+             "most TOL wide: a width in the table's unit (mm² for one layer, mm³ for several), "
+             "e.g. 0.5, or a percentage of the lost amount, e.g. 5% (floor: 1/100 of that "
+             "percentage of the part, so 5% allows 0.05% of the part). Refused up front, with "
+             "the estimate, when it would need more than --max-memory."),
+    separate_ties: bool = typer.Option(
+        False, "--separate-ties/--no-separate-ties",
+        help="Refine the nozzles whose certified intervals overlap until they separate (at "
+             "most --refine-budget times the first pass's work)."),
+    refine_budget: float = typer.Option(
+        4.0, "--refine-budget", min=0.0, metavar="FACTOR",
+        help="Work --separate-ties may add, as a multiple of the first pass's work."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
     """Compute, per layer and per nozzle, the motion restriction P, the as-built layer S and
@@ -89,8 +103,11 @@ def analyze_command(
     with progress_callback("analysing layers", enabled=progress) as on_progress:
         result = analyze(layers, nozzle, machine, engine=engine, settings=settings,
                          keep_results=out is not None, scheduler=scheduler,
-                         on_progress=on_progress)
+                         on_progress=on_progress, bound_tolerance=bound_tolerance,
+                         separate_ties=separate_ties, refine_budget=refine_budget)
     print_ranking(result)
+    for line in ranking_notes(result, suggest=not separate_ties):
+        typer.echo(line)
     if json_out is not None:
         write_json_atomic(json_out, result.to_json())
     if out is not None:
@@ -147,7 +164,8 @@ def ranking_table(result):
 
     Several layers with heights are compared by volume, so the lost amount, its share and
     its certified bounds are all volumes (mm³); one layer, or layers without a height, by
-    area (mm²).
+    area (mm²). The rank column shows the ranks the certified bounds allow: ``1–2`` when a
+    nozzle's interval overlaps another's (tied within the certified bounds).
 
     Parameters
     ----------
@@ -161,29 +179,74 @@ def ranking_table(result):
     from rich import box
     from rich.table import Table
 
-    from printability.ranking import totals, uses_volume
+    from printability.ranking import rank_label, totals, uses_volume
 
     volume = uses_volume([lay.height for lay in result.layers])
     unit = "mm³" if volume else "mm²"
     n_layers = len(result.layers)
     what = (f"lost volume: Σ over {n_layers} layers of the lost area × the layer height"
             if volume else "lost area" + (f": Σ over {n_layers} layers" if n_layers > 1 else ""))
+    caption = f"{what}; bounds: the certified interval of that figure"
+    if result.ties:
+        caption += "; rank A–B: tied within the certified bounds (their intervals overlap)"
     table = Table(title=f"{result.input} — machine {result.machine.spec}, engine {result.engine}, "
                         f"{n_layers} layer(s)",
-                  caption=f"{what}; bounds: the certified interval of that figure",
-                  box=box.SIMPLE_HEAD, pad_edge=False)
+                  caption=caption, box=box.SIMPLE_HEAD, pad_edge=False)
     # in a narrow terminal the headers wrap, never the nozzle SPEC: a reader copies it
     widest = max((len(n.nozzle.spec) for n in result.nozzles), default=6)
-    table.add_column("rank", justify="right")
+    table.add_column("rank", justify="right", no_wrap=True)
     table.add_column("nozzle", justify="left", no_wrap=True, min_width=min(widest, 48))
     for col in (f"lost\n{unit}", "lost\n%", f"bounds\n{unit}", "compo-\nnents", "build\ntime"):
         table.add_column(col, justify="right", overflow="fold")
     for n in result.nozzles:
         t = totals(n.layers, volume=volume)
         lo, hi = t.lost_bounds
-        table.add_row(str(n.rank), n.nozzle.spec, f"{t.lost:.4g}", f"{100 * t.lost_fraction:.2f}",
+        label = rank_label(n.rank_range) if n.rank_range != (0, 0) else str(n.rank)
+        table.add_row(label, n.nozzle.spec, f"{t.lost:.4g}", f"{100 * t.lost_fraction:.2f}",
                       f"[{lo:.4g}, {hi:.4g}]", str(n.components), _duration(n.build_time))
     return table
+
+
+def ranking_notes(result, *, suggest: bool = True) -> list[str]:
+    """Lines printed under the table: ties, and what refinement met and cost.
+
+    Parameters
+    ----------
+    result : printability.analysis.Analysis
+        The ranked analysis.
+    suggest
+        Whether to suggest ``--separate-ties`` for tied nozzles.
+
+    Returns
+    -------
+    list of str
+    """
+    lines = []
+    unit = "mm³" if result.quantity == "volume" else "mm²"
+    for a, b in result.ties:
+        lines.append(f"tied within the certified bounds: {a} and {b} (their intervals overlap; "
+                     "the order of their estimates is not certain)"
+                     + ("; --separate-ties refines them" if suggest else ""))
+    ref = result.refinement
+    if ref is not None:
+        if ref.tolerance is not None:
+            widths = ", ".join(
+                f"{n.nozzle.spec} {_width(n):.3g} ≤ {n.allowed_width:.3g} {unit}"
+                if n.tolerance_met else
+                f"{n.nozzle.spec} {_width(n):.3g} > {n.allowed_width:.3g} {unit}"
+                for n in result.nozzles)
+            lines.append(f"bound tolerance {ref.tolerance}: "
+                         + ("met" if ref.met else f"not met ({ref.stopped})") + f": {widths}")
+        if ref.rounds or ref.separate_ties or ref.tolerance is not None:
+            finest = min((o.resolution for n in result.nozzles for o in n.layers
+                          if o.refinements and o.engine == "raster"), default=None)
+            lines.append(
+                f"refinement: {ref.rounds} round(s), {ref.tasks} layer computation(s), "
+                f"{ref.elapsed:.1f} s" + (f", finest resolution {finest:g} mm"
+                                           if finest is not None else "")
+                + f"; stopped: {ref.stopped}")
+        lines.extend(f"refinement: {note}" for note in ref.notes)
+    return lines
 
 
 def print_ranking(result) -> None:
@@ -194,6 +257,11 @@ def print_ranking(result) -> None:
 
     # a pipe or a file gets the whole table, not one wrapped to 80 columns
     Console(width=None if sys.stdout.isatty() else 140).print(ranking_table(result))
+
+
+def _width(n) -> float:
+    lo, hi = n.totals().lost_bounds
+    return hi - lo
 
 
 def _duration(seconds: float) -> str:

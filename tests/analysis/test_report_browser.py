@@ -108,9 +108,10 @@ def centre(img: np.ndarray, b: tuple[slice, slice]) -> np.ndarray:
 
 def test_report_holes_empty_and_lost_colour_only_where_lost(tmp_path):
     """The round nozzle (exact engine) loses the four outer corners: red there and nowhere
-    else in its layer figure; the ellipse on T-T-R (raster engine) loses nothing by its
-    estimate: no red at all in its figure, its not-proven band in orange, with the orange
-    in the page's key. Every figure leaves the hole empty."""
+    else in its layer figure; the ellipse on T-T-R (raster engine) loses a speck at each
+    outer corner by its estimate (0.0038 mm² by a shapely opening at 1° steps), but its S
+    is an inner bound: no red at all in its figure, its not-proven band in orange, with
+    the orange in the page's key. Every figure leaves the hole empty."""
     import matplotlib.image as mpimg
 
     part = tmp_path / "square.wkt"
@@ -123,7 +124,7 @@ def test_report_holes_empty_and_lost_colour_only_where_lost(tmp_path):
     assert p.returncode == 0, p.stderr
     doc = json.loads((tmp_path / "r.json").read_text())
     lost = {n["spec"]: n["lost_area"] for n in doc["nozzles"]}
-    assert lost["ellipse:major=0.8,minor=0.3"] == 0 < lost["circle:d=0.8"]
+    assert 0 < lost["ellipse:major=0.8,minor=0.3"] < 0.01 < lost["circle:d=0.8"]
     png = tmp_path / "shot.png"
     screenshot(out / "index.html", png, tmp_path, size=(1400, 3600))
     img = (mpimg.imread(png) * 255).astype(np.uint8)
@@ -141,8 +142,8 @@ def test_report_holes_empty_and_lost_colour_only_where_lost(tmp_path):
         (y0, y1), (x0, x1) = (b[0].start, b[0].stop), (b[1].start, b[1].stop)
         pad = (y1 - y0) // 20
         ys, xs = np.nonzero(red[y0 - pad:y1 + pad, x0 - pad:x1 + pad])
-        if lost[spec] == 0:
-            assert len(ys) == 0, f"{spec}: red drawn where nothing is lost"
+        if spec.startswith("ellipse"):  # the raster engine's inner bound: never red
+            assert len(ys) == 0, f"{spec}: red drawn for an inner bound"
         else:
             assert len(ys) > 0, f"{spec}: the lost corners are not drawn"
             # only at the four outer corners of the square

@@ -30,8 +30,8 @@ ROUND, ELLIPSE = "circle:d=0.8", "ellipse:major=0.8,minor=0.4"
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    """The demo on the square with a hole: the ellipse loses nothing, the round nozzle its
-    four outer corners."""
+    """The demo on the square with a hole: the ellipse loses slivers at the outer corners,
+    the round nozzle the corners themselves."""
     tmp = tmp_path_factory.mktemp("demo")
     part = tmp / "square.wkt"
     part.write_text(SQUARE_WITH_HOLE)
@@ -119,7 +119,10 @@ def test_figure_shows_every_nozzle_beside_the_deposition(demo, tmp_path):
     img = (mpimg.imread(png) * 255).astype(np.uint8)
     doc = json.loads((demo / "report.json").read_text())
     lost = {r["nozzle"]: r["lost_area"] for r in doc["ranking"]}
-    assert lost[ELLIPSE] == 0 < lost[ROUND]
+    # the ellipse, turned, reaches into the square's corners all but a sliver (a shapely
+    # opening over 1° steps gives 0.0114 mm²); the round nozzle loses r²(4 − π) there
+    assert 0 < lost[ELLIPSE] < 0.1 * lost[ROUND]
+    assert lost[ROUND] == pytest.approx(0.4**2 * (4 - np.pi), rel=0.02)
 
     # one row: the ellipse (printed, ranked first), the round nozzle, the deposition
     predicted = blobs(mask_of(img, AS_BUILT))
@@ -134,8 +137,9 @@ def test_figure_shows_every_nozzle_beside_the_deposition(demo, tmp_path):
         (y0, y1), (x0, x1) = (b[0].start, b[0].stop), (b[1].start, b[1].stop)
         pad = (y1 - y0) // 20
         ys, xs = np.nonzero(red[y0 - pad:y1 + pad, x0 - pad:x1 + pad])
-        # red where the numbers say loss, and only there: the round nozzle's four corners
-        assert (len(ys) > 0) == (lost[spec] > 0), spec
+        # red where the numbers say loss a pixel can show, and only there: the round
+        # nozzle's four corners (the ellipse's slivers, 0.003 mm² each, are under a pixel)
+        assert (len(ys) > 0) == (spec == ROUND), spec
         if len(ys):
             ys, xs = ys + y0 - pad, xs + x0 - pad
             dy = np.minimum(abs(ys - y0), abs(ys - y1)) / (y1 - y0)

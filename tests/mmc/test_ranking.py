@@ -6,12 +6,16 @@ import dataclasses
 import math
 
 import pytest
+from hypothesis import given
+from hypothesis import settings as hyp_settings
+from hypothesis import strategies as st
 from shapes import comb, rectangle, u_shape
 
 from printability.errors import InputError
 from printability.mmc import compute_mmc
 from printability.nozzle import parse_nozzle
 from printability.ranking import RankRow, bead_width_for_time, rank
+from printability.settings import Settings
 
 
 def exact(g, spec, machine="xy"):
@@ -93,3 +97,53 @@ def test_an_entry_mixing_nozzles_is_refused():
     g = u_shape()
     with pytest.raises(InputError, match="mixes nozzles"):
         rank([[exact(g, "circle:d=0.4"), exact(g, "circle:d=0.6")]])
+
+
+# -- certified ranks: what the bounds establish -----------------------------------------------
+
+def test_certified_ranks_of_disjoint_overlapping_and_touching_intervals():
+    from printability.ranking import certified_ranks, rank_label, ties
+
+    bounds = [(0.0, 1.0), (2.0, 3.0), (2.5, 4.0), (4.0, 5.0)]
+    assert certified_ranks(bounds) == [(1, 1), (2, 3), (2, 4), (3, 4)]
+    # touching intervals do not separate: both exact values could be 4.0
+    assert ties(bounds) == [(1, 2), (2, 3)]
+    assert [rank_label(r) for r in certified_ranks(bounds)] == ["1", "2–3", "2–4", "3–4"]
+    assert certified_ranks([(1.0, 1.0), (1.0, 1.0)]) == [(1, 2), (1, 2)]
+
+
+@given(st.lists(st.tuples(st.floats(0, 100), st.floats(0, 50), st.floats(0, 1)),
+                min_size=1, max_size=7))
+@hyp_settings(max_examples=200, deadline=None)
+def test_the_exact_values_rank_within_the_certified_ranges(items):
+    """Whatever the exact values inside their intervals, their true ranks lie in the ranges."""
+    from printability.ranking import certified_ranks
+
+    bounds = [(lo, lo + w) for lo, w, _ in items]
+    exact = [lo + t * w for lo, w, t in items]
+    ranges = certified_ranks(bounds)
+    order = sorted(range(len(items)), key=lambda i: exact[i])
+    for place, i in enumerate(order, 1):
+        # with equal exact values any order among them is a true ranking: check the span
+        first = 1 + sum(1 for v in exact if v < exact[i])
+        last = sum(1 for v in exact if v <= exact[i])
+        best, worst = ranges[i]
+        assert best <= first and last <= worst, (bounds, exact, ranges)
+        assert first <= place <= last
+
+
+def test_rank_says_which_places_are_certain():
+    # the exact engine is tight: a 0.25 and a 1.0 mm circle on a comb are far apart
+    g = comb()
+    rows = rank([exact(g, "circle:d=1.0"), exact(g, "circle:d=0.25")])
+    assert [r.rank_range for r in rows] == [(1, 1), (2, 2)]
+    assert all(r.rank_certain and r.tied_with == () for r in rows)
+    # the raster engine's coarse intervals overlap: a tie, said so
+    coarse = [compute_mmc(g, s, "xy", engine="raster", settings=Settings(resolution=0.2))
+              for s in ("circle:d=0.6", "circle:d=0.5")]
+    rows = rank(coarse)
+    lo0, hi0 = rows[0].lost_bounds
+    lo1, hi1 = rows[1].lost_bounds
+    assert lo1 <= hi0 and lo0 <= hi1  # the intervals overlap...
+    assert [r.rank_range for r in rows] == [(1, 2), (1, 2)]  # ...so no order is certain
+    assert rows[0].tied_with == (rows[1].spec,) and not rows[0].rank_certain
