@@ -364,7 +364,7 @@ def chain_viterbi(cand_in, cand_out, node_cost, folds, params):  # pragma: no co
 def distinct_candidates(red, keep, per):  # pragma: no cover
     """Clear ``keep[i, c]`` where an earlier kept column of row ``i`` holds the same
     orientation modulo ``per`` (to 1e-9), in place: the numpy loop over the columns of
-    :func:`printability.motion.orientation._least_turning`, the same operations per pair
+    :func:`printability.motion.turns.least_turning`, the same operations per pair
     (``(a - b + per/2) % per - per/2``), without its (rows × columns) temporaries."""
     n, k = red.shape
     half = 0.5 * per
@@ -381,7 +381,7 @@ def distinct_candidates(red, keep, per):  # pragma: no cover
 
 @numba.njit(cache=True)
 def fold_pairs(cand_in, cand_out, chained, per, fold_max):  # pragma: no cover
-    """The table of :func:`printability.motion.orientation._fold_table`, compiled: per move
+    """The table of :func:`printability.motion.turns._fold_table`, compiled: per move
     and pair (previous move's candidate j, its c) 0 after a travel, 1 chained, 3 where the
     turn (nearest way round, ``np.round`` as ``np.rint``: the same bits) is more than
     1e-9 and at most ``fold_max``. No (moves × k × k) temporaries."""

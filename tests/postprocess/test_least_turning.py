@@ -1,6 +1,6 @@
 """The orientation planner turns on rather than rocking (issue 22).
 
-:func:`printability.motion.orientation._least_turning` re-picks every whole move's
+:func:`printability.motion.turns.least_turning` re-picks every whole move's
 orientation among admissible candidates with a Viterbi pass over each path
 (:func:`printability.motion._plan_kernels.chain_viterbi`): a turn the nozzle must make
 standing still (a full stop of the XY motion on real firmware) and a reversal cost extra.
@@ -51,7 +51,7 @@ def test_the_axis_turns_on_rather_than_rocking(request, monkeypatch, fixture):
     options = PostprocessOptions(nozzle="ellipse:major=0.8,minor=0.3", machine="ttr")
     new, res = postprocess_bytes(data, options=options)
     with monkeypatch.context() as m:
-        m.setattr(orientation, "_least_turning", lambda angle, *a, **kw: angle)
+        m.setattr(orientation, "least_turning", lambda angle, *a, **kw: angle)
         old, res_old = postprocess_bytes(data, options=options)
     standing, total, reversals = _turns(new)
     standing_old, total_old, reversals_old = _turns(old)

@@ -21,6 +21,7 @@ import printability.postprocess as pp
 from gcode import parse_gcode
 from printability.motion import footprints as fp
 from printability.motion.check import check_deposition, extrusion_chords
+from printability.motion.turns import turning_fits
 from printability.nozzle import parse_nozzle
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 from printability.rewrite import rewrite, rewrite_reference
@@ -108,7 +109,7 @@ def test_piece_folds_are_the_turning_footprint_test(monkeypatch):
             assert 0 < abs(end - prev) <= fold_max
             d = p1[m] - p0[m]
             a, b = p0[m] + t0[r] * d, p0[m] + t1[r] * d
-            assert orientation._turning_fits(grown, pieces, a[None], b[None],
+            assert turning_fits(grown, pieces, a[None], b[None],
                                              np.array([prev]), np.array([end]))[0]
             folds += 1
         # the steps refine the one-step bound: what the bound accepts, the steps accept too
@@ -117,6 +118,6 @@ def test_piece_folds_are_the_turning_footprint_test(monkeypatch):
         phi0 = rng.uniform(0, 180, 300)
         phi1 = phi0 + rng.uniform(-20, 20, 300)
         one = fp.fits(grown, pieces, p0[i], p1[i], phi0, angle_end=phi1)
-        steps = orientation._turning_fits(grown, pieces, p0[i], p1[i], phi0, phi1)
+        steps = turning_fits(grown, pieces, p0[i], p1[i], phi0, phi1)
         assert one.any() and np.all(steps[one])
     assert folds > 0
