@@ -9,14 +9,11 @@ import sys
 from pathlib import Path
 
 import bg_helpers
-import numpy as np
 import pytest
 from bg_helpers import PRUSA_DEFAULT, library_valid
 
-from gcode import NON_PART_CATEGORIES, parse_gcode
+from gcode import parse_gcode
 from gcode.bgcode import PRINT_METADATA, PRINTER_METADATA, decode_bgcode
-from printability.motion.check import check_deposition, extrusion_chords
-from printability.nozzle import parse_nozzle
 from printability.postprocess import already_processed
 
 ELLIPSE = "ellipse:major=0.8,minor=0.3"
@@ -94,7 +91,7 @@ def _end_to_end(exe: str, stl: Path, tmp: Path, mode: tuple[int, int]) -> None:
     """PrusaSlicer 2.5 writes text G-code: in its post-processing chain the file is made
     binary (as PrusaSlicer ≥ 2.7 writes it, thumbnails included) and copied aside, then the
     plug-in's console script runs on it, as a 2.7 slicer calls it."""
-    from pp_helpers import geos_targets, lines_not_kept
+    from pp_helpers import check_rewritten_part
 
     before = tmp / "before.bgcode"
     out = tmp / "ttr.gcode"
@@ -111,23 +108,8 @@ def _end_to_end(exe: str, stl: Path, tmp: Path, mode: tuple[int, int]) -> None:
     d0, d1 = decode_bgcode(old), decode_bgcode(new)
     assert {(b.compression, b.encoding) for b in d1.gcode_blocks} == {mode}
     g0, g1 = parse_gcode(old), parse_gcode(new)  # the reader decodes them
-    # the slicer's untouched lines decode as they were, in order
-    m = g0.moves
-    part = m["is_extrusion"] & ~np.isin(g0.feature_category_of_moves(), list(NON_PART_CATEGORIES))
-    missing, changed = lines_not_kept(d0.gcode, d1.gcode, set(m["line"][part].tolist()))
-    assert not missing, f"slicer lines lost or altered: {missing[:5]}"
-    assert changed
-    # the asymmetric nozzle turns: rotary words, never on arcs
-    c = g1.words["line"][g1.words["letter"] == ord("C")]
-    assert c.size > 0
-    assert not np.isin(g1.lines["major"][c], [2, 3]).any()
-    # deposition: never outside G beyond the tolerance, on three layers spread over the part
-    targets = geos_targets(g0)
-    have = [i for i, t in enumerate(targets) if t is not None]
-    layers = sorted({have[0], have[len(have) // 2], have[-1]})
-    reports = check_deposition(extrusion_chords(g1), targets, parse_nozzle(ELLIPSE),
-                               layers=layers)
-    assert reports and all(rep.max_outside <= 1e-3 + 2e-4 for rep in reports), reports
+    # untouched lines decode as they were, rotary words, deposition inside G
+    check_rewritten_part(d0.gcode, d1.gcode, g0, g1, ELLIPSE)
 
 
 def test_prusaslicer_hands_binary_gcode_to_the_plugin(prusa_slicer, shared_data, tmp_path):

@@ -7,7 +7,8 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
-__all__ = ["first_layers", "geos_targets", "laid_widths", "lines_not_kept"]
+__all__ = ["check_rewritten_part", "first_layers", "geos_targets", "laid_widths",
+           "lines_not_kept"]
 
 _C_WORD = re.compile(rb" C-?[0-9.]+")
 _INSERTED = re.compile(rb"^(G92 E-?[0-9.]+|G1 C-?[0-9.]+|; printability.*)\r?\n?$")
@@ -136,3 +137,31 @@ def laid_widths(data: bytes, nozzle: str, monkeypatch) -> tuple[float, float]:
         good = np.where(wide_ok[has], err >= -5e-3, np.abs(err) <= 5e-3)
         exact += lens[has][good].sum()
     return kept / total, exact / planned
+
+
+def check_rewritten_part(old: bytes, new: bytes, g0, g1, nozzle: str) -> None:
+    """What a post-processed slicer file must hold, from its text before (``old``, parsed
+    ``g0``) and after (``new``, ``g1``): every slicer line outside the part's extrusions kept
+    byte for byte and in order, some lines rewritten, rotary words present and never on an
+    arc, and the deposition of ``nozzle`` never outside G beyond the tolerance on three
+    layers spread over the part."""
+    import numpy as np
+
+    from gcode import NON_PART_CATEGORIES
+    from printability.motion.check import check_deposition, extrusion_chords
+    from printability.nozzle import parse_nozzle
+
+    m = g0.moves
+    part = m["is_extrusion"] & ~g0.moves_in(NON_PART_CATEGORIES)
+    missing, changed = lines_not_kept(old, new, set(m["line"][part].tolist()))
+    assert not missing, f"slicer lines lost or altered: {missing[:5]}"
+    assert changed
+    c = g1.words["line"][g1.words["letter"] == ord("C")]
+    assert c.size > 0
+    assert not np.isin(g1.lines["major"][c], [2, 3]).any()
+    targets = geos_targets(g0)
+    have = [i for i, t in enumerate(targets) if t is not None]
+    layers = sorted({have[0], have[len(have) // 2], have[-1]})
+    reports = check_deposition(extrusion_chords(g1), targets, parse_nozzle(nozzle),
+                               layers=layers)
+    assert reports and all(rep.max_outside <= 1e-3 + 2e-4 for rep in reports), reports

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pp_helpers import geos_targets, laid_widths, lines_not_kept
+from pp_helpers import check_rewritten_part, geos_targets, laid_widths
 
-from gcode import NON_PART_CATEGORIES, parse_gcode
+from gcode import parse_gcode
 from printability.motion.check import check_deposition, extrusion_chords
 from printability.nozzle import parse_nozzle
 from printability.postprocess import already_processed
@@ -51,23 +51,7 @@ def _end_to_end(exe: str, stl: Path, tmp: Path) -> None:
     old, new = before.read_bytes(), out.read_bytes()
     assert already_processed(new) and not already_processed(old)
     g0, g1 = parse_gcode(old), parse_gcode(new)  # the result parses
-    # the slicer's untouched lines are kept byte for byte, in order
-    m = g0.moves
-    part = m["is_extrusion"] & ~np.isin(g0.feature_category_of_moves(), list(NON_PART_CATEGORIES))
-    missing, changed = lines_not_kept(old, new, set(m["line"][part].tolist()))
-    assert not missing, f"slicer lines lost or altered: {missing[:5]}"
-    assert changed
-    # the asymmetric nozzle turns: rotary words, never on arcs
-    c = g1.words["line"][g1.words["letter"] == ord("C")]
-    assert c.size > 0
-    assert not np.isin(g1.lines["major"][c], [2, 3]).any()
-    # deposition: never outside G beyond the tolerance, on three layers spread over the part
-    targets = geos_targets(g0)
-    have = [i for i, t in enumerate(targets) if t is not None]
-    layers = sorted({have[0], have[len(have) // 2], have[-1]})
-    reports = check_deposition(extrusion_chords(g1), targets, parse_nozzle(ELLIPSE),
-                               layers=layers)
-    assert reports and all(rep.max_outside <= 1e-3 + 2e-4 for rep in reports), reports
+    check_rewritten_part(old, new, g0, g1, ELLIPSE)
 
 
 def test_prusaslicer_runs_the_plugin_calibration_cube(prusa_slicer, shared_data, tmp_path):
