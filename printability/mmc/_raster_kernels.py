@@ -698,9 +698,12 @@ def _blocked(p0x, p0y, tx, ty, nx_, ny_, g0x, g0y, g1x, g1y, r):  # pragma: no c
             hi = max(hi, sq + w)
     vx = g1x - g0x
     vy = g1y - g0y
-    l2 = vx * vx + vy * vy
-    if l2 > 0.0:
-        lg = math.sqrt(l2)
+    # hypot, not sqrt(l2): a segment ~1e-162 long has a subnormal l2 whose square root is
+    # off by a percent, which would scale the normal and widen the band.  Below 1e-100 mm the
+    # segment is its two endpoint disks (the sausage's middle is narrower than 1e-200 mm).
+    lg = math.hypot(vx, vy)
+    if lg > 1e-100:
+        l2 = lg * lg
         mx = -vy / lg
         my = vx / lg
         f0 = (p0x - g0x) * mx + (p0y - g0y) * my
