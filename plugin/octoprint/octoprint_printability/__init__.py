@@ -562,11 +562,7 @@ def _digest(path: str) -> str:
 
 
 def _duration(seconds: float | None) -> str:
-    if seconds is None:
-        return "?"
-    m, s = divmod(round(seconds), 60)
-    h, m = divmod(m, 60)
-    return f"{h}h {m:02d}m {s:02d}s" if h else f"{m}m {s:02d}s"
+    return "?" if seconds is None else core.format_duration(seconds)
 
 
 __plugin_name__ = "printability"

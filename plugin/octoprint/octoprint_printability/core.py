@@ -18,6 +18,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+from gcode.printtime import format_duration
 from printability.base.errors import PrintabilityError
 from printability.base.options import FLAVORS, Registry
 
@@ -303,11 +304,7 @@ def summary_html(summary: Mapping[str, Any]) -> str:
     e = html.escape
 
     def t(x: float | None) -> str:
-        if x is None:
-            return "not estimated"
-        m, s = divmod(round(x), 60)
-        h, m = divmod(m, 60)
-        return f"{h}h {m:02d}m {s:02d}s" if h else f"{m}m {s:02d}s"
+        return "not estimated" if x is None else format_duration(x)
 
     rows = "".join(
         f"<tr><td>{r['index']}</td><td>{r['z']:.3f}</td><td>{r['target_area']:.3f}</td>"
