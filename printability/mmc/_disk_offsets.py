@@ -333,10 +333,44 @@ def _side_band(geom: BaseGeometry, r: float, quad_segs: int, side: int) -> BaseG
         return _EMPTY
     # GEOS: a positive distance offsets the left side, a negative one the right
     parts = _buffer_pieces(lines, side * d, quad_segs, single_sided=True)
+    parts = _drop_wrong_faces(lines, parts, side * d, quad_segs)
     if len(caps):
         disks = shapely.buffer(shapely.points(caps), d, quad_segs=quad_segs)
         parts = np.concatenate([parts, disks])
     return _union_in_order(parts)
+
+
+def _drop_wrong_faces(lines: np.ndarray, parts: np.ndarray, d: float,
+                      quad_segs: int) -> np.ndarray:
+    """Replace one-sided buffers that GEOS built on the wrong face.
+
+    When a piece nearly closes on itself and its offset curve crosses itself (a U whose
+    ends lie closer than the offset), GEOS's single-sided buffer can return the face the
+    offset curve encloses instead of the strip along the line (seen: a 10 × 6 mm ring cut
+    at one vertex, offset by 1.0000001 mm, gave the 8 × 4 interior, and the erosion lost
+    the whole polygon). Every face of a true piece lies within |d| of its line (d signed
+    as GEOS takes it), so a face whose probe point lies farther marks a wrong piece. It is
+    replaced by the one-sided buffers of its single segments (rectangles, which GEOS
+    cannot get wrong); they leave out the wedges at the turns, which only shrinks the band
+    (every band is used as a subset). Cost: one probe and one distance per face.
+    """
+    if len(parts) == 0:
+        return parts
+    faces, owner = shapely.get_parts(parts, return_index=True)
+    if len(faces) == 0:
+        return parts
+    far = shapely.distance(shapely.point_on_surface(faces), lines[owner]) > abs(d) * (1 + 1e-6)
+    if not far.any():
+        return parts
+    bad = np.unique(owner[far])
+    keep = np.ones(len(parts), bool)
+    keep[bad] = False
+    pieces = [parts[keep]]
+    for line in lines[bad]:
+        xy = shapely.get_coordinates(line)
+        segs = shapely.linestrings(np.stack([xy[:-1], xy[1:]], axis=1))
+        pieces.append(_buffer_pieces(segs, d, quad_segs, single_sided=True))
+    return np.concatenate(pieces)
 
 
 def _buffer_pieces(lines: np.ndarray, d: float, quad_segs: int, **kw) -> np.ndarray:

@@ -227,3 +227,35 @@ def test_exact_engine_self_check_keeps_quiet_where_the_nozzle_barely_fits():
     g = as_region(Polygon([(0, 0), (30, 0), (30, 4), (0, 4)]))
     assert exact_module._deep_points(g, 0.95) == []
     assert len(exact_module._deep_points(g, 0.5)) == 1
+
+
+def test_one_sided_band_never_takes_the_face_inside_a_nearly_closed_piece():
+    """GEOS's single-sided buffer of a U whose ends lie closer than the offset returned the
+    face its offset curve encloses (a hypothesis run found it: two unit squares touching at
+    a corner beside an L, eroded by a 1.0 mm circle, lost the whole L)."""
+    from printability.mmc._disk_offsets import _side_band, erode_disk
+
+    ring = Polygon([(10, 7), (10, 0), (12, 0), (12, 8), (10, 8), (10, 13), (0, 13), (0, 7)])
+    g = shapely.MultiPolygon([Polygon([(0, 2), (0, 0), (2, 0), (2, 2)]),
+                              Polygon([(2, 2), (4, 2), (4, 4), (2, 4)]), ring])
+    band = _side_band(g, 1.0 + 2e-7, 16, +1)
+    # every point of the band lies within the offset of ∂G
+    assert shapely.difference(band, g.boundary.buffer(1.0 + 3e-7)).area < 1e-9
+    eroded = erode_disk(g, 1.0, quad_segs=16)
+    # the L's erosion: its 10 x 6 body less 1 mm all round (the 2 mm arm erodes to a line)
+    assert eroded.area == pytest.approx(32.0, abs=1e-3)
+
+
+def test_exact_engine_on_squares_touching_at_a_corner_beside_an_l():
+    g = shapely.from_wkt("MULTIPOLYGON (((0 0, 0 1, 1 1, 1 0, 0 0)), ((2 2, 2 1, 1 1, 1 2, "
+                         "2 2)), ((6 0, 5 0, 5 3.5, 0 3.5, 0 6.5, 5 6.5, 5 4, 6 4, 6 0)))")
+    res = compute_mmc(g, "circle:d=1.0", "xy", engine="exact", settings=Settings())
+    lo, hi = res.lost_area_bounds
+    # each unit square holds the disk at one point: it loses 1 - π/4. The L's 1 mm arm holds
+    # it along a line (a measure-zero P): printed, it leaves r²(1 - π/4) at each of the six
+    # convex corners and at the two places beside the reflex corners that neither the body's
+    # disks nor the arm's reach; not printed, the arm is lost too. The bounds hold both.
+    squares = 2 * (1 - math.pi / 4)
+    corners = 8 * 0.25 * (1 - math.pi / 4)
+    assert lo == pytest.approx(squares + corners, rel=1e-3)
+    assert hi >= squares + corners + 3.0
