@@ -29,9 +29,19 @@ def _edges(u):
         [[(a, b), (c, d)] for a, b, c, d in zip(u.ex0, u.ey0, u.ex1, u.ey1, strict=True)])
 
 
+def _without_zero_area_holes(geom):
+    """GEOS's union less the holes of no area it leaves where three grown caps nearly meet
+    (seen: a hole 2.8 µm round and 1.6e-19 mm² in area, its sides ~1e-16 mm apart): rounding
+    artefacts, not gaps, which G' has no reason to keep."""
+    polys = [shapely.Polygon(q.exterior, [h for h in q.interiors
+                                          if shapely.Polygon(h).area > 1e-15])
+             for q in shapely.get_parts(geom)]
+    return shapely.union_all(polys) if len(polys) != 1 else polys[0]
+
+
 def _check_against_geos(p0, p1, r, tau, rng):
     u = bead_union(p0, p1, r, grow=tau)
-    ref = u.geometry()  # GEOS union of the same polygons
+    ref = _without_zero_area_holes(u.geometry())  # GEOS union of the same polygons
     # the kept edges are on the union's boundary (within ε = 1e-9 mm), and they cover it but
     # for the gaps where two faces meet at a shallow angle θ (about 2ε/sin θ long)
     edges = _edges(u)
@@ -94,6 +104,7 @@ def test_real_layers_match_geos(request, fixture):
        tau=st.sampled_from([0.95e-3, 0.01, 0.05]))
 @example(seed=8966, n=11, tau=0.01)  # two beads touching along an edge (found by hypothesis)
 @example(seed=11288, n=29, tau=0.05)  # two caps touching along an edge: a seam in GEOS's union
+@example(seed=616, n=37, tau=0.05)  # three caps nearly meeting: a hole of no area in GEOS's
 def test_random_beads_match_geos(seed, n, tau):
     rng = np.random.default_rng(seed)
     p0 = rng.uniform(0, 4, (n, 2)).round(3)  # slicer-like: 1 µm coordinates
