@@ -13,6 +13,10 @@ prusaslicer_ttr.ini``) and each shared slicer sample, side by side in one run:
   axis twice as fast and four times as strong (720 °/s, 15 000 °/s²), timed by
   :mod:`gcode.printtime` (Klipper's look-ahead, within 0.4 % of klippy on these files): how
   much of the cost is the axis's limits, which the machine's owner sets in the profile;
+- **axis unlimited** (estimate): the post-processed file timed by :mod:`gcode.printtime` with
+  the rotary axis's acceleration and corner velocity unlimited (a rotation-only move still
+  takes its F, and still stops the XY motion, as Klipper stops at every move with no XYZ
+  motion): what the plan's own path costs, apart from the axis;
 - **generated** (STLs only): ``generate`` of the same STL for the same nozzle and machine
   (it fills the interior solid, so it extrudes more than the slicer's 15 % infill: a different
   part, listed for the record).
@@ -25,6 +29,7 @@ Times exclude homing (batch mode has no endstop: G28 travels 1.5x each axis). Th
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 import subprocess
 import sys
@@ -37,6 +42,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from gcode import parse_gcode  # noqa: E402
+from gcode.printtime import estimate_print_time  # noqa: E402
 from printability.generate import generate_file  # noqa: E402
 from printability.machine import parse_machine  # noqa: E402
 from printability.postprocess import PostprocessOptions, postprocess_bytes  # noqa: E402
@@ -117,6 +124,13 @@ def _row(name: str, before: bytes, cfg: str, tmp: Path, stl: Path | None) -> dic
     _, fast = postprocess_bytes(before, options=PostprocessOptions(
         nozzle=NOZZLE, machine=str(_fast_profile(tmp))))
     row["fast"] = fast.print_time_out / fast.print_time_in
+    m = parse_machine(MACHINE)
+    free = dataclasses.replace(m.rotary_axis, acceleration=1e9, corner_velocity=1e9)
+    t_in = estimate_print_time(parse_gcode(before, path=name), limits=m.planner,
+                               rotary=free).total
+    t_out = estimate_print_time(parse_gcode(after, path=name), limits=m.planner,
+                                rotary=free).total
+    row["unlimited"] = t_out / t_in
     if stl is not None:
         out = tmp / "gen.gcode"
         generate_file(stl, out, NOZZLE, MACHINE, layer_height=0.2)
@@ -159,13 +173,16 @@ def main(argv: list[str] | None = None) -> int:
     fast = [r["fast"] for r in rows]
     print(f"with a rotary axis of {FAST[0]:g} °/s and {FAST[1]:g} °/s² (estimate): "
           f"{min(fast):.2f}x .. {max(fast):.2f}x (median {float(np.median(fast)):.2f}x)")
+    free = [r["unlimited"] for r in rows]
+    print(f"with the axis's acceleration and corner velocity unlimited (estimate): "
+          f"{min(free):.2f}x .. {max(free):.2f}x (median {float(np.median(free)):.2f}x)")
     return 0
 
 
 def _print(r: dict) -> None:
     gen = f", generated {r['generated']:.0f} s" if "generated" in r else ""
     print(f"{r['name']:<42} slicer {r['slicer']:8.1f} s  post-processed {r['post']:8.1f} s  "
-          f"{r['ratio']:5.2f}x  [faster axis {r['fast']:4.2f}x]  "
+          f"{r['ratio']:5.2f}x  [faster axis {r['fast']:4.2f}x, unlimited {r['unlimited']:4.2f}x]  "
           f"(full stops {r['stops0']} -> {r['stops1']}, rotation-only "
           f"moves {r['rot_only']} = {r['rot_only_s']:.0f} s; post-processing "
           f"{r['pp_cpu']:.1f} s CPU{gen})", flush=True)
