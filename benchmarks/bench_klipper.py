@@ -14,9 +14,9 @@ prusaslicer_ttr.ini``) and each shared slicer sample, side by side in one run:
   :mod:`gcode.printtime` (Klipper's look-ahead, within 0.4 % of klippy on these files): how
   much of the cost is the axis's limits, which the machine's owner sets in the profile;
 - **axis unlimited** (estimate): the post-processed file timed by :mod:`gcode.printtime` with
-  the rotary axis's acceleration and corner velocity unlimited (a rotation-only move still
-  takes its F, and still stops the XY motion, as Klipper stops at every move with no XYZ
-  motion): what the plan's own path costs, apart from the axis;
+  the rotary axis's speed, acceleration and corner velocity unlimited (a rotation-only move
+  still stops the XY motion, as Klipper stops at every move with no XYZ motion): what the
+  plan's own path costs, apart from the axis;
 - **generated** (STLs only): ``generate`` of the same STL for the same nozzle and machine
   (it fills the interior solid, so it extrudes more than the slicer's 15 % infill: a different
   part, listed for the record).
@@ -125,7 +125,8 @@ def _row(name: str, before: bytes, cfg: str, tmp: Path, stl: Path | None) -> dic
         nozzle=NOZZLE, machine=str(_fast_profile(tmp))))
     row["fast"] = fast.print_time_out / fast.print_time_in
     m = parse_machine(MACHINE)
-    free = dataclasses.replace(m.rotary_axis, acceleration=1e9, corner_velocity=1e9)
+    free = dataclasses.replace(m.rotary_axis, max_speed=1e9, acceleration=1e9,
+                               corner_velocity=1e9)
     t_in = estimate_print_time(parse_gcode(before, path=name), limits=m.planner,
                                rotary=free).total
     t_out = estimate_print_time(parse_gcode(after, path=name), limits=m.planner,
@@ -174,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"with a rotary axis of {FAST[0]:g} °/s and {FAST[1]:g} °/s² (estimate): "
           f"{min(fast):.2f}x .. {max(fast):.2f}x (median {float(np.median(fast)):.2f}x)")
     free = [r["unlimited"] for r in rows]
-    print(f"with the axis's acceleration and corner velocity unlimited (estimate): "
+    print(f"with the axis's speed, acceleration and corner velocity unlimited (estimate): "
           f"{min(free):.2f}x .. {max(free):.2f}x (median {float(np.median(free)):.2f}x)")
     return 0
 
