@@ -138,9 +138,11 @@ def _frame(ax, geom: BaseGeometry) -> None:
     ax.set_ylabel("y (mm)")
 
 
-def _png(fig) -> bytes:
+def _png(plt, fig) -> bytes:
+    """The figure as PNG bytes; the figure is closed."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
     return buf.getvalue()
 
 
@@ -229,9 +231,7 @@ def _fig_layer(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> bytes:
     # below the axes: inside, the legend's swatches would stand on the drawing (a red
     # swatch in the middle of a part that loses only its corners)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=8, frameon=False)
-    data = _png(fig)
-    plt.close(fig)
-    return data
+    return _png(plt, fig)
 
 
 def _fig_motion(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> bytes | None:
@@ -275,9 +275,7 @@ def _fig_motion(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> bytes
         _frame(ax, target)
         ax.set_title(f"P at φ = {angles[k]:.1f}°")
     fig.suptitle(title)
-    data = _png(fig)
-    plt.close(fig)
-    return data
+    return _png(plt, fig)
 
 
 def _mask_at(motion, k: int) -> Raster | None:
@@ -300,9 +298,7 @@ def _fig_components(plt, o: LayerOutcome, target: BaseGeometry, title: str) -> b
         draw_geometry(ax, geom, cmap(i % 20))
     _frame(ax, target)
     ax.set_title(f"{title}: {r.components.count} component(s) of P")
-    data = _png(fig)
-    plt.close(fig)
-    return data
+    return _png(plt, fig)
 
 
 def _fig_overview(plt, analysis: Analysis) -> tuple[bytes, float]:
@@ -347,9 +343,7 @@ def _fig_overview(plt, analysis: Analysis) -> tuple[bytes, float]:
                bbox_to_anchor=(0.5, 0.0))
     fig.suptitle(f"All nozzles on the layer z = {analysis.layers[i].z:g} mm", fontsize=10)
     fig.tight_layout(rect=(0, 0.08, 1, 0.97), h_pad=0.5, w_pad=0.5)
-    data = _png(fig)
-    plt.close(fig)
-    return data, analysis.layers[i].z
+    return _png(plt, fig), analysis.layers[i].z
 
 
 def _fig_per_layer(plt, analysis: Analysis) -> bytes:
@@ -362,9 +356,7 @@ def _fig_per_layer(plt, analysis: Analysis) -> bytes:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title("Lost area per layer")
-    data = _png(fig)
-    plt.close(fig)
-    return data
+    return _png(plt, fig)
 
 
 def _geojson(n: NozzleAnalysis, analysis: Analysis) -> dict[str, Any]:
@@ -469,73 +461,78 @@ def _img(name: str, data: bytes, alt: str) -> str:
             "</figure>")
 
 
+def _nozzle_report(plt, n: NozzleAnalysis, analysis: Analysis, out: Path,
+                   volume: bool) -> tuple[str, str, bool]:
+    """Write one nozzle's figures (of the layer it loses most on) and as-built geometry;
+    return its row of the ranking table, its section of the page, and whether some layer's S
+    is an inner bound."""
+    from printability.cli.common import write_atomic
+    from printability.ranking import rank_label, totals
+
+    t = totals(n.layers, volume=volume)
+    area = totals(n.layers, volume=False)
+    lo, hi = t.lost_bounds
+    label = rank_label(n.rank_range) if n.rank_range != (0, 0) else str(n.rank)
+    row = (f"<tr><td>{html.escape(label)}</td><td><code>{html.escape(n.nozzle.spec)}</code></td>"
+           f"<td>{t.lost:.4g}</td><td>{100 * t.lost_fraction:.2f}</td>"
+           f"<td>[{lo:.4g}, {hi:.4g}]</td>"
+           + (f"<td>{area.lost:.4g}</td><td>[{area.lost_bounds[0]:.4g}, "
+              f"{area.lost_bounds[1]:.4g}]</td>" if volume else "")
+           + f"<td>{n.components}</td></tr>")
+    slug = f"nozzle{n.rank}"
+    worst = _worst_layer(n)
+    target = analysis.layers[worst.index].region
+    title = f"{n.nozzle.spec} — layer z = {worst.z:g} mm"
+    figs = []
+    for tag, maker in (("layer", _fig_layer), ("motion", _fig_motion),
+                       ("components", _fig_components)):
+        data = maker(plt, worst, target, title)
+        if data is not None:
+            name = f"{slug}_{tag}.png"
+            write_atomic(out / name, data)
+            figs.append(_img(name, data, f"{tag} figure for {n.nozzle.spec}"))
+    links = [f"{slug}_as_built.geojson"]
+    write_atomic(out / links[-1], json.dumps(_geojson(n, analysis)))
+    if worst.result is not None and worst.result.as_built is not None:
+        links.append(f"{slug}_as_built.svg")
+        write_atomic(out / links[-1], _svg(worst.result.as_built, target))
+    mesh = _mesh(n, analysis) if analysis.multi_layer else None
+    if mesh is not None:
+        links.append(f"{slug}_as_built.stl")
+        write_atomic(out / links[-1], mesh)
+    inner = any(o.result is not None and is_inner_bound(o.result) for o in n.layers)
+    notes = "".join(f"<li>{html.escape(t)}</li>" for t in
+                    (worst.result.notes if worst.result is not None else (worst.note,)) if t)
+    w_lo, w_hi = worst.lost_area_bounds
+    section = (
+        f"<section><h2>#{n.rank}: <code>{html.escape(n.nozzle.spec)}</code></h2>"
+        f"<p>Lost {t.lost:.4g} {t.unit} of {t.target:.4g} {t.unit} "
+        f"({100 * t.lost_fraction:.2f} %), certified bounds [{lo:.4g}, {hi:.4g}] {t.unit}"
+        + (" (the engine's estimate within them)" if inner else "") + ". "
+        f"Figures show the layer that loses most: z = {worst.z:g} mm, lost "
+        f"{worst.lost_area:.4g} mm², bounds [{w_lo:.4g}, {w_hi:.4g}] mm².</p>"
+        f"{''.join(figs)}<ul>{notes}</ul><p>Geometry"
+        + (" (the certified inner bound S_inner: printed for sure; the figures above are "
+           "the estimate)" if inner else "") + ": "
+        + ", ".join(f'<a href="{html.escape(x)}">{html.escape(x)}</a>' for x in links)
+        + "</p></section>")
+    return row, section, inner
+
+
 def write_report(analysis: Analysis, out_dir: str | Path) -> Path:
     """Write ``index.html``, PNG figures and the as-built geometry into ``out_dir``.
 
     Every file is written atomically. Returns the path of ``index.html``.
     """
     from printability.cli.common import write_atomic
-    from printability.ranking import rank_label, totals, uses_volume
+    from printability.ranking import uses_volume
 
     plt = _pyplot()
     out = Path(out_dir)
-    sections = []
-    rows = []
     volume = uses_volume([lay.height for lay in analysis.layers])
-    any_inner = False
-    for n in analysis.nozzles:
-        t = totals(n.layers, volume=volume)
-        area = totals(n.layers, volume=False)
-        lo, hi = t.lost_bounds
-        label = rank_label(n.rank_range) if n.rank_range != (0, 0) else str(n.rank)
-        rows.append(
-            f"<tr><td>{html.escape(label)}</td><td><code>{html.escape(n.nozzle.spec)}</code></td>"
-            f"<td>{t.lost:.4g}</td><td>{100 * t.lost_fraction:.2f}</td>"
-            f"<td>[{lo:.4g}, {hi:.4g}]</td>"
-            + (f"<td>{area.lost:.4g}</td><td>[{area.lost_bounds[0]:.4g}, "
-               f"{area.lost_bounds[1]:.4g}]</td>" if volume else "")
-            + f"<td>{n.components}</td></tr>")
-        slug = f"nozzle{n.rank}"
-        worst = _worst_layer(n)
-        target = analysis.layers[worst.index].region
-        title = f"{n.nozzle.spec} — layer z = {worst.z:g} mm"
-        figs = []
-        for tag, maker in (("layer", _fig_layer), ("motion", _fig_motion),
-                           ("components", _fig_components)):
-            data = maker(plt, worst, target, title)
-            if data is not None:
-                name = f"{slug}_{tag}.png"
-                write_atomic(out / name, data)
-                figs.append(_img(name, data, f"{tag} figure for {n.nozzle.spec}"))
-        links = []
-        gj = _geojson(n, analysis)
-        write_atomic(out / f"{slug}_as_built.geojson", json.dumps(gj))
-        links.append(f"{slug}_as_built.geojson")
-        if worst.result is not None and worst.result.as_built is not None:
-            write_atomic(out / f"{slug}_as_built.svg", _svg(worst.result.as_built, target))
-            links.append(f"{slug}_as_built.svg")
-        if analysis.multi_layer:
-            mesh = _mesh(n, analysis)
-            if mesh is not None:
-                write_atomic(out / f"{slug}_as_built.stl", mesh)
-                links.append(f"{slug}_as_built.stl")
-        inner = any(o.result is not None and is_inner_bound(o.result) for o in n.layers)
-        any_inner = any_inner or inner
-        notes = "".join(f"<li>{html.escape(t)}</li>" for t in
-                        (worst.result.notes if worst.result is not None else (worst.note,)) if t)
-        w_lo, w_hi = worst.lost_area_bounds
-        sections.append(
-            f"<section><h2>#{n.rank}: <code>{html.escape(n.nozzle.spec)}</code></h2>"
-            f"<p>Lost {t.lost:.4g} {t.unit} of {t.target:.4g} {t.unit} "
-            f"({100 * t.lost_fraction:.2f} %), certified bounds [{lo:.4g}, {hi:.4g}] {t.unit}"
-            + (" (the engine's estimate within them)" if inner else "") + ". "
-            f"Figures show the layer that loses most: z = {worst.z:g} mm, lost "
-            f"{worst.lost_area:.4g} mm², bounds [{w_lo:.4g}, {w_hi:.4g}] mm².</p>"
-            f"{''.join(figs)}<ul>{notes}</ul><p>Geometry"
-            + (" (the certified inner bound S_inner: printed for sure; the figures above are "
-               "the estimate)" if inner else "") + ": "
-            + ", ".join(f'<a href="{html.escape(x)}">{html.escape(x)}</a>' for x in links)
-            + "</p></section>")
+    parts = [_nozzle_report(plt, n, analysis, out, volume) for n in analysis.nozzles]
+    rows, sections = [p[0] for p in parts], [p[1] for p in parts]
+    any_inner = any(p[2] for p in parts)
     overview = ""
     if len(analysis.nozzles) > 1:
         data, z = _fig_overview(plt, analysis)

@@ -19,8 +19,9 @@ __all__ = ["register"]
 
 
 def analyze_command(
-    input: Path = typer.Argument(..., help="Part: .gcode, .stl/.3mf/.obj, .svg/.dxf/.geojson/"  # noqa: B008
-                                 ".wkt, a slice-outline .txt or a multi-layer slice SVG."),
+    input: Path = typer.Argument(..., help="Part: .gcode/.bgcode, .stl/.3mf/.obj, "  # noqa: B008
+                                 ".svg/.dxf/.geojson/.wkt, a slice-outline .txt or a "
+                                 "multi-layer slice SVG."),
     nozzle: list[str] = typer.Option(  # noqa: B008
         ["circle:d=0.4"], "--nozzle", "-n", metavar="SPEC",
         help="A candidate nozzle, repeatable: circle:d=0.4, ellipse:major=0.8,minor=0.3, "
@@ -82,7 +83,7 @@ def analyze_command(
     """Compute, per layer and per nozzle, the motion restriction P, the as-built layer S and
     what is lost; print the nozzles ranked by what they lose (area for one layer, volume for
     several)."""
-    from printability.analysis import analyze, select_layers
+    from printability.analysis import RefineOptions, analyze, select_layers
     from printability.settings import Settings
     from printability.sources import load_layers
 
@@ -100,11 +101,12 @@ def analyze_command(
         layers = select_layers(layers, layers_spec)
     for warning in layers.meta.get("warnings", ()):
         typer.echo(f"printability: warning: {warning}", err=True)
+    refine = RefineOptions(bound_tolerance=bound_tolerance, separate_ties=separate_ties,
+                           refine_budget=refine_budget)
     with progress_callback("analysing layers", enabled=progress) as on_progress:
         result = analyze(layers, nozzle, machine, engine=engine, settings=settings,
                          keep_results=out is not None, scheduler=scheduler,
-                         on_progress=on_progress, bound_tolerance=bound_tolerance,
-                         separate_ties=separate_ties, refine_budget=refine_budget)
+                         on_progress=on_progress, refine=refine)
     print_ranking(result)
     for line in ranking_notes(result, suggest=not separate_ties):
         typer.echo(line)

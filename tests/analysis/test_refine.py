@@ -12,7 +12,7 @@ import pytest
 import shapely
 from shapely.geometry import MultiPolygon, box
 
-from printability.analysis import BoundTolerance, analyze
+from printability.analysis import BoundTolerance, RefineOptions, analyze
 from printability.errors import InputError, ResourceError
 from printability.geometry import as_region
 from printability.layers import Layer, LayerStack
@@ -99,7 +99,7 @@ def test_an_absolute_tolerance_is_met_and_the_bounds_hold_the_exact_value():
     lo, hi = coarse.nozzles[0].lost_area_bounds
     assert hi - lo > tol  # the premise: too wide at h = 0.1
     a = analyze(rect_stack(), [f"circle:d={d}"], "xy", engine="raster", settings=settings,
-                bound_tolerance=tol)
+                refine=RefineOptions(bound_tolerance=tol))
     n = a.nozzles[0]
     lo, hi = n.lost_area_bounds
     assert hi - lo <= tol and n.tolerance_met and a.refinement.met
@@ -120,7 +120,7 @@ def test_a_relative_tolerance_over_layers_is_in_volume():
                              for i, t in enumerate((0.2, 0.3))), source="comb")
     spec = "rect:w=0.6,h=0.6"
     a = analyze(stack, [spec], "xy", engine="raster", settings=Settings(resolution=0.1),
-                bound_tolerance="50%")
+                refine=RefineOptions(bound_tolerance="50%"))
     n = a.nozzles[0]
     t = n.totals()
     assert t.unit == "mm³" and n.tolerance_met and a.refinement.rounds >= 1
@@ -136,7 +136,7 @@ def test_a_tolerance_beyond_the_memory_guard_is_refused_up_front():
     settings = Settings(resolution=0.05, max_memory=64 << 20)
     with pytest.raises(ResourceError, match=r"MiB.*nothing was refined"):
         analyze(rect_stack(40, 40), ["circle:d=1.0"], "xy", engine="raster",
-                settings=settings, bound_tolerance=1e-4)
+                settings=settings, refine=RefineOptions(bound_tolerance=1e-4))
 
 
 def test_ties_separate_when_refined_and_the_exact_values_stay_inside():
@@ -149,7 +149,7 @@ def test_ties_separate_when_refined_and_the_exact_values_stay_inside():
     assert plain.ties  # coarse intervals overlap
     assert [n.rank_range for n in plain.nozzles] == [(1, 2), (1, 2)]
     a = analyze(stack, [small, large], "xy", engine="raster", settings=settings,
-                separate_ties=True, refine_budget=1000)
+                refine=RefineOptions(separate_ties=True, refine_budget=1000))
     assert not a.ties and a.refinement.stopped == "separated"
     assert [n.rank_range for n in a.nozzles] == [(1, 1), (2, 2)]
     assert [n.nozzle.spec for n in a.nozzles] == [small, large]
@@ -164,7 +164,8 @@ def test_ties_separate_when_refined_and_the_exact_values_stay_inside():
 def test_tie_separation_stays_within_its_budget():
     stack = LayerStack((Layer(0.0, 0.0, as_region(comb()), 0),), source="comb")
     a = analyze(stack, ["rect:w=0.25,h=0.25", "rect:w=0.6,h=0.6"], "xy", engine="raster",
-                settings=Settings(resolution=0.1), separate_ties=True, refine_budget=0.0)
+                settings=Settings(resolution=0.1),
+                refine=RefineOptions(separate_ties=True, refine_budget=0.0))
     assert a.refinement.rounds == 0 and a.refinement.stopped == "budget"
     assert a.ties  # still tied, and said so
 

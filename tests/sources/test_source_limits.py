@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-import printability.analysis as analysis_module
+import printability.analysis.tasks as analysis_tasks
 from printability.analysis import RASTER_WORK_BUDGET, analyze, raster_work
 from printability.errors import FileFormatError, ResourceError
 from printability.machine import parse_machine
@@ -113,7 +113,7 @@ def test_a_resolution_too_fine_is_refused_before_the_engine_runs(square, monkeyp
     def never(*args, **kwargs):
         raise AssertionError("an engine ran")
 
-    monkeypatch.setattr(analysis_module, "compute_mmc", never)
+    monkeypatch.setattr(analysis_tasks, "compute_mmc", never)
     with pytest.raises(ResourceError) as e:
         analyze(square, ["ellipse:major=0.8,minor=0.3"], "ttr",
                 settings=Settings(resolution=1e-3))
