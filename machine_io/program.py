@@ -6,6 +6,13 @@ Comments and blank lines are not sent; a line already framed by another host
 itself); ``M110`` (set line number) is not sent either, because the host owns
 the numbering. Everything else is sent exactly as written, trimmed.
 
+Binary G-code (``.bgcode``, PrusaSlicer ≥ 2.7; recognised by its first bytes, ``GCDE``,
+whatever the file's name) is decoded first (:func:`gcode.bgcode.decode_bgcode`: every
+block's CRC checked, the G-code blocks decompressed and MeatPack-decoded) and its G-code
+is sent by the same rules: the commands of the same G-code as text, in the same order.
+Line numbers (messages, ``--resume-from``) are then those of the decoded G-code, which
+has neither the thumbnails nor the metadata of the text file.
+
 The state tracker (:class:`MachineState`, :func:`state_at`) follows the modal
 state the firmware would have after a given line — positions including the
 rotary axis and E, absolute/relative modes, feed rate, temperatures, fan — so
@@ -20,12 +27,14 @@ import math
 import os
 import re
 import stat
+import struct
 from array import array
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, BinaryIO, overload
 
+from gcode.bgcode import decode_bgcode, is_bgcode
 from machine_io.protocol import EXTRA_AXES, command_code
 from machine_io.session import StreamReport
 from printability.base.errors import InputError, PrintabilityOSError, ResourceError, excerpt
@@ -57,6 +66,14 @@ _CHUNK = 1 << 20
 BYTES_PER_COMMAND = 24
 # Skipped lines listed in Program.skipped (a file of nothing but M110 would list millions).
 _MAX_SKIPPED = 1000
+# Binary G-code: MeatPack puts two characters in a byte and its decoder puts back a blank
+# before each parameter letter of a G line, so a MeatPack-encoded G-code block decodes to at
+# most 4 bytes of text per byte of its (decompressed) data; PrusaSlicer's files decode to
+# 1.7-1.9, "G0 X X X..." to 3.5. Unencoded blocks state their text size exactly.
+MEATPACK_EXPANSION = 4
+_BG_HEADER = struct.Struct("<4sIH")  # magic, version, checksum type (gcode.bgcode's framing)
+_BG_BLOCK = struct.Struct("<HHI")  # type, compression, uncompressed size
+_BG_GCODE, _BG_THUMBNAIL = 1, 5
 
 
 class _Packed:
@@ -297,8 +314,15 @@ class _Builder:
 def _lines(fh: BinaryIO) -> Iterator[bytes]:
     """The lines of a file (ended by ``\\n``, ``\\r\\n`` or ``\\r``, as
     :meth:`bytes.splitlines`), read a megabyte at a time."""
+    return _chunk_lines(iter(lambda: fh.read(_CHUNK), b""))
+
+
+def _chunk_lines(chunks: Iterable[bytes]) -> Iterator[bytes]:
+    """The lines of the text made of ``chunks`` (cut anywhere), as :func:`_lines`."""
     carry = bytearray()
-    while chunk := fh.read(_CHUNK):
+    for chunk in chunks:
+        if not chunk:
+            continue
         # complete lines end at the last terminator; a final \r may be half of a \r\n
         cut = max(chunk.rfind(b"\n"), chunk.rfind(b"\r", 0, len(chunk) - 1))
         if cut < 0:
@@ -337,13 +361,19 @@ def parse_program(data: bytes, *, source: str = "<data>",
         checksum) or a control character, or is too long once framed — all
         found before anything is sent, naming the line. Bytes that are not
         UTF-8 inside a comment are dropped with the comment.
+    FileFormatError
+        Binary G-code (``data`` starts with ``GCDE``) that is damaged: the one-paragraph
+        message of :func:`gcode.bgcode.decode_bgcode`, naming the block.
     """
-    return _parse(io.BytesIO(data), source, max_line_length)
+    if is_bgcode(data):
+        texts = decode_bgcode(data, path=source).gcode_texts
+        return _parse(_chunk_lines(texts), source, max_line_length)
+    return _parse(_lines(io.BytesIO(data)), source, max_line_length)
 
 
-def _parse(fh: BinaryIO, source: str, max_line_length: int | None) -> Program:
+def _parse(lines: Iterable[bytes], source: str, max_line_length: int | None) -> Program:
     builder = _Builder(source)
-    for lineno, raw in enumerate(_lines(fh), start=1):
+    for lineno, raw in enumerate(lines, start=1):
         builder.add(lineno, raw)
     program = builder.program()
     if max_line_length is not None:
@@ -370,6 +400,14 @@ def program_memory(path: str | Path) -> int:
     """Bytes :func:`load_program` will keep for ``path``, at most (its text plus
     :data:`BYTES_PER_COMMAND` per line), from one quick pass that counts its lines.
 
+    Binary G-code is compressed (and MeatPack-encoded): its size says little of its text.
+    For it this is what decoding takes, from the block headers alone (nothing is
+    decompressed): the file twice (its bytes and the blocks handed to the codec) and its
+    G-code text twice (as decoded, then as bytes), the text being the G-code blocks'
+    uncompressed size, times :data:`MEATPACK_EXPANSION` for MeatPack-encoded blocks (a
+    bound). Once the file is decoded, :func:`load_program` checks the program itself:
+    the text it holds plus the commands' text and :data:`BYTES_PER_COMMAND` per line.
+
     Raises
     ------
     PrintabilityOSError
@@ -379,6 +417,9 @@ def program_memory(path: str | Path) -> int:
     size = lines = 0
     try:
         with path.open("rb") as fh:
+            if is_bgcode(fh.read(4)):
+                return _binary_memory(fh)[0]
+            fh.seek(0)
             while chunk := fh.read(_CHUNK):
                 size += len(chunk)
                 lines += chunk.count(b"\n") + chunk.count(b"\r")
@@ -386,6 +427,52 @@ def program_memory(path: str | Path) -> int:
         raise PrintabilityOSError(f"{path}: cannot read the G-code file "
                                   f"({exc.strerror or exc})") from None
     return size + BYTES_PER_COMMAND * (lines + 1)
+
+
+def _binary_memory(fh: BinaryIO) -> tuple[int, int]:
+    """What decoding the binary G-code file ``fh`` takes (see :func:`program_memory`) and
+    the most text it decodes to, bytes."""
+    size = os.fstat(fh.fileno()).st_size
+    text = _binary_text_size(fh, size)
+    return 2 * size + 2 * text, text
+
+
+def _binary_text_size(fh: BinaryIO, size: int) -> int:
+    """Most bytes of G-code text the binary G-code file ``fh`` (``size`` bytes) decodes to,
+    from its block headers (libbgcode's framing, as :mod:`gcode.bgcode` reads it): each
+    G-code block's uncompressed size, times :data:`MEATPACK_EXPANSION` when it is
+    MeatPack-encoded. The walk stops where the framing is damaged (decoding then says
+    what is wrong): what it found so far, or the file's size times the expansion when that
+    is larger."""
+    fh.seek(0)
+    head = fh.read(_BG_HEADER.size)
+    if len(head) < _BG_HEADER.size:
+        return 0
+    crc = 4 if _BG_HEADER.unpack(head)[2] == 1 else 0
+    pos, total, complete = _BG_HEADER.size, 0, False
+    while True:
+        if pos == size:
+            complete = True
+            break
+        fh.seek(pos)
+        head = fh.read(_BG_BLOCK.size + 6)
+        if len(head) < _BG_BLOCK.size + 2:
+            break
+        kind, compression, data_size = _BG_BLOCK.unpack_from(head)
+        at = _BG_BLOCK.size
+        stored = data_size
+        if compression:
+            if len(head) < at + 6:
+                break
+            stored = int.from_bytes(head[at:at + 4], "little")
+            at += 4
+        encoding = int.from_bytes(head[at:at + 2], "little")
+        if kind == _BG_GCODE:
+            total += data_size * (MEATPACK_EXPANSION if encoding else 1)
+        pos += at + (6 if kind == _BG_THUMBNAIL else 2) + stored + crc
+        if pos > size:
+            break
+    return total if complete else max(total, MEATPACK_EXPANSION * size)
 
 
 def check_gcode_file(path: str | Path) -> None:
@@ -415,7 +502,10 @@ def load_program(path: str | Path, *,
 
     The file is read a megabyte at a time and only the commands are kept,
     packed (:class:`PackedTexts`): about the size of the file's commands plus
-    :data:`BYTES_PER_COMMAND` bytes per command.
+    :data:`BYTES_PER_COMMAND` bytes per command. Binary G-code (``.bgcode``, or any file
+    starting with ``GCDE``) is read whole and decoded (:func:`gcode.bgcode.decode_bgcode`),
+    then its G-code is read the same way; the memory it takes is checked before it is
+    decoded (from its block headers, :func:`program_memory`) and again once it is.
 
     Parameters
     ----------
@@ -437,6 +527,9 @@ def load_program(path: str | Path, *,
         The program would take more than ``max_memory``.
     InputError
         See :func:`parse_program`.
+    FileFormatError
+        Damaged binary G-code (a block that fails its CRC, a file cut off...): the
+        one-paragraph message of :func:`gcode.bgcode.decode_bgcode`.
     """
     path = Path(path)
     check_gcode_file(path)
@@ -445,22 +538,53 @@ def load_program(path: str | Path, *,
 
         max_memory = default_memory_limit()
     need = program_memory(path)
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(65536)
+            binary = is_bgcode(head)
+            if need > max_memory:
+                text = _binary_memory(fh)[1] if binary else 0
+                _too_big(path, need, max_memory, binary, text, decoded=False)
+            if not binary:
+                if b"\x00" in head:
+                    raise InputError(f"{path}: this is a binary file, not G-code text; nothing "
+                                     f"was sent.")
+                fh.seek(0)
+                return _parse(_lines(fh), str(path), max_line_length)
+            fh.seek(0)
+            data = fh.read()
+    except OSError as exc:
+        raise PrintabilityOSError(f"{path}: cannot read the G-code file "
+                                  f"({exc.strerror or exc})") from None
+    texts = decode_bgcode(data, path=str(path)).gcode_texts
+    del data  # the decoded file (thumbnails, metadata) goes too: only its G-code is kept
+    text = sum(map(len, texts))
+    lines = sum(t.count(b"\n") + t.count(b"\r") for t in texts)
+    need = 2 * text + BYTES_PER_COMMAND * (lines + 1)  # the text, the program
     if need > max_memory:
+        _too_big(path, need, max_memory, binary, text, decoded=True)
+    return _parse(_chunk_lines(texts), str(path), max_line_length)
+
+
+def _too_big(path: Path, need: int, max_memory: int, binary: bool, text: int, *,
+             decoded: bool) -> None:
+    """Refuse a file whose program would take ``need`` bytes, more than ``max_memory``
+    (binary G-code: ``text`` bytes of G-code, as decoded or at most)."""
+    if not binary:
         raise ResourceError(
             f"{path}: reading this G-code file for streaming would take about "
             f"{need / 2**20:,.0f} MiB, more than the {max_memory / 2**20:,.0f} MiB allowed "
             f"(half the memory, at most 16 GiB); nothing was sent. Split the file (at a layer "
             f"change) and stream the parts with --resume-from, or use a host with more memory.")
-    try:
-        with path.open("rb") as fh:
-            if b"\x00" in fh.read(65536):
-                raise InputError(f"{path}: this is a binary file, not G-code text; nothing was "
-                                 f"sent.")
-            fh.seek(0)
-            return _parse(fh, str(path), max_line_length)
-    except OSError as exc:
-        raise PrintabilityOSError(f"{path}: cannot read the G-code file "
-                                  f"({exc.strerror or exc})") from None
+    size = (f"its G-code is {text / 2**20:,.1f} MiB of text once decoded" if decoded else
+            f"by its block headers, its G-code decodes to at most {text / 2**20:,.1f} MiB of "
+            f"text")
+    raise ResourceError(
+        f"{path}: reading this binary G-code file for streaming would take about "
+        f"{need / 2**20:,.0f} MiB ({size}), more than the {max_memory / 2**20:,.0f} MiB "
+        f"allowed (half the memory, at most 16 GiB); nothing was sent. Export the part from "
+        f"the slicer as text G-code, split it (at a layer change) and stream the parts with "
+        f"--resume-from, or use a host with more memory.")
 
 
 def _words(text: str) -> dict[str, float]:

@@ -169,7 +169,8 @@ STREAM_MODES = _reg(
 SOURCE_FORMATS = _reg(
     "source format",
     # "3mf" is not an identifier, hence the dict below.
-    gcode="sliced G-code (.gcode, .gco, .g): layers rebuilt from the extrusions",
+    gcode="sliced G-code (.gcode, .gco, .g; binary .bgcode): layers rebuilt from the "
+    "extrusions",
     stl="triangle mesh (.stl, binary or ASCII; no units), sliced at a layer height",
     **{"3mf": "3MF package (.3mf; units from the file), sliced at a layer height"},
     obj="Wavefront OBJ mesh (.obj; no units), sliced at a layer height",

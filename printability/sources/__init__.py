@@ -7,7 +7,7 @@ first bytes when the extension says nothing (or ``format=`` forces one of
 ============================  ==========================================  ====================
 extension                     reader (in :mod:`printability.sources`)     layers
 ============================  ==========================================  ====================
-.gcode .gco .g                :func:`.gcode.load_gcode_layers`            from the extrusions
+.gcode .gco .g .bgcode        :func:`.gcode.load_gcode_layers`            from the extrusions
 .stl .3mf .obj                :func:`.mesh.load_mesh_layers`              sliced at mid-height
 .svg                          :func:`.svg.load_svg_layers`                1 (Slic3r's: many)
 .dxf                          :func:`.dxf.load_dxf_layers`                1
@@ -15,6 +15,11 @@ extension                     reader (in :mod:`printability.sources`)     layers
 .wkt                          :func:`.geo.load_wkt_layers`                1
 .txt (slice outlines)         :func:`.slices.load_slice_layers`           1
 ============================  ==========================================  ====================
+
+Binary G-code (``.bgcode``, PrusaSlicer ≥ 2.7) is recognised by its first bytes (``GCDE``)
+whatever its extension, and read as the G-code it holds (:func:`gcode.bgcode.decode_bgcode`:
+every block's CRC checked, the G-code blocks decompressed and MeatPack-decoded): the layers
+are those of the same G-code as text.
 
 Planar sources give one layer at z = 0 of height 0 (:attr:`LayerStack.is_planar`).
 All coordinates come out in mm; what each reader assumed (units, background
@@ -27,6 +32,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from gcode.bgcode import is_bgcode
 from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
 from printability.layers import LayerStack
 from printability.options import SOURCE_FORMATS
@@ -36,7 +42,7 @@ from printability.sources._common import option_name
 __all__ = ["EXTENSIONS", "detect_format", "load_layers"]
 
 EXTENSIONS: dict[str, str] = {
-    ".gcode": "gcode", ".gco": "gcode", ".g": "gcode",
+    ".gcode": "gcode", ".gco": "gcode", ".g": "gcode", ".bgcode": "gcode",
     ".stl": "stl", ".3mf": "3mf", ".obj": "obj",
     ".svg": "svg",
     ".dxf": "dxf",
@@ -80,7 +86,8 @@ def _sniff(head: bytes, size: int) -> str | None:
 
 
 def detect_format(path: str | Path) -> str:
-    """The source format of ``path``: from its extension, else from its content.
+    """The source format of ``path``: from its extension, else from its content (binary
+    G-code, starting with ``GCDE``, is ``"gcode"`` whatever its extension).
 
     Raises
     ------
@@ -100,7 +107,9 @@ def detect_format(path: str | Path) -> str:
         size = p.stat().st_size
     except OSError as exc:
         raise PrintabilityOSError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    if fmt is None:
+    if is_bgcode(head):  # binary G-code, whatever the file is called
+        fmt = "gcode"
+    elif fmt is None:
         fmt = _sniff(head, size)
     if fmt is None:
         known = ", ".join(sorted(EXTENSIONS))
