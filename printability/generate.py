@@ -460,11 +460,11 @@ def generate_file(
                              first_layer_height=first_layer_height, units=units)
     text, res = generate_gcode(layers, nozzle, machine, options=options, on_progress=report)
     out = Path(output)
-    from printability.postprocess import _write_atomic
+    from printability.postprocess.files import write_atomic
 
     report(f"writing {out.name}", 0, 0)
     try:
-        _write_atomic(out, text.encode("utf-8"))
+        write_atomic(out, text.encode("utf-8"))
     except OSError as exc:
         raise PrintabilityOSError(f"{out}: cannot write the G-code ({exc.strerror or exc})") \
             from None

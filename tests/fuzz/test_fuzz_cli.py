@@ -35,7 +35,7 @@ SEED = 24  # the issue's number: a red run names a regression, not a new draw
 HANG = 60.0  # seconds after which a run counts as a hang (a normal one takes 1–3 s)
 
 # The guards' estimates, bytes of memory per byte of input: postprocess when it plans every
-# move (printability.postprocess.BYTES_PER_BYTE_PLANNED), the SVG, map and slice readers
+# move (printability.postprocess.memory.BYTES_PER_BYTE_PLANNED), the SVG, map and slice readers
 # (their _BYTES_PER_INPUT_BYTE), a mesh (its triangles: about 50 bytes of file each, 30 kB
 # of work each at the most a slicing of a few layers takes; bounded here by the SVG's).
 PER_BYTE = {"gcode": 100.0, "svg": 120.0, "geojson": 60.0, "wkt": 60.0, "slices": 120.0,

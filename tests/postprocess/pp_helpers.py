@@ -103,9 +103,10 @@ def laid_widths(data: bytes, nozzle: str, monkeypatch) -> tuple[float, float]:
 
     import printability.postprocess as pp
     from printability.nozzle import parse_nozzle
+    from printability.postprocess import pipeline
 
     plans = []
-    real = pp.plan_orientations
+    real = pipeline.plan_orientations
 
     def spy(p0, p1, widths, *args, **kwargs):
         plan = real(p0, p1, widths, *args, **kwargs)
@@ -114,7 +115,7 @@ def laid_widths(data: bytes, nozzle: str, monkeypatch) -> tuple[float, float]:
         plans.append((p0, p1, np.asarray(widths, float), inner, plan))
         return plan
 
-    monkeypatch.setattr(pp, "plan_orientations", spy)
+    monkeypatch.setattr(pipeline, "plan_orientations", spy)
     pp.postprocess_bytes(data, options=pp.PostprocessOptions(nozzle=nozzle, machine="ttr"))
     nz = parse_nozzle(nozzle)
     total = kept = planned = exact = 0.0

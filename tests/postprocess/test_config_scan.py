@@ -11,7 +11,8 @@ import re
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from printability.postprocess import _config_value, already_processed
+from printability.postprocess import already_processed
+from printability.postprocess.scan import config_value
 
 
 def _regex_value(data: bytes, key: str) -> float | None:
@@ -41,6 +42,6 @@ _piece = st.sampled_from([
 def test_settings_scan_is_the_regex(pieces, eol):
     data = eol.join(pieces)
     for key in ("nozzle_diameter", "filament_diameter"):
-        assert _config_value(data, key) == _regex_value(data, key), data
+        assert config_value(data, key) == _regex_value(data, key), data
     marker = re.search(rb"^; printability \S+ postprocessed this file", data, re.MULTILINE)
     assert already_processed(data) == (marker is not None), data

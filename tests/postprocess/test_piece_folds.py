@@ -17,7 +17,7 @@ import numpy as np
 from pp_helpers import geos_targets
 
 import printability.motion.orientation as orientation
-import printability.postprocess as pp
+import printability.postprocess.pipeline as pipeline
 from gcode import parse_gcode
 from printability.motion import footprints as fp
 from printability.motion.check import check_deposition, extrusion_chords
@@ -46,7 +46,7 @@ def test_piece_turns_ride_on_the_moves_and_stay_inside(monkeypatch):
     new = _run()
     with monkeypatch.context() as mp:
         plan = orientation.plan_orientations
-        mp.setattr(pp, "plan_orientations",
+        mp.setattr(pipeline, "plan_orientations",
                    lambda *a, **k: plan(*a, **{**k, "fold_pieces": False}))
         without = _run()
     assert _rotation_only(new) < _rotation_only(without)
@@ -68,11 +68,11 @@ def test_piece_turns_ride_on_the_moves_and_stay_inside(monkeypatch):
 def test_the_compiled_rewrite_writes_the_reference_with_piece_folds(monkeypatch):
     new = _run()
     with monkeypatch.context() as mp:
-        mp.setattr(pp, "rewrite", rewrite_reference)
+        mp.setattr(pipeline, "rewrite", rewrite_reference)
         ref = _run()
     assert new == ref
     with monkeypatch.context() as mp:
-        mp.setattr(pp, "rewrite", rewrite)
+        mp.setattr(pipeline, "rewrite", rewrite)
         assert _run() == ref
 
 
@@ -87,7 +87,7 @@ def test_piece_folds_are_the_turning_footprint_test(monkeypatch):
         seen.append((p0, p1, nozzle, kw, plan))
         return plan
 
-    monkeypatch.setattr(pp, "plan_orientations", record)
+    monkeypatch.setattr(pipeline, "plan_orientations", record)
     _run()
     fold_max = orientation.OrientationOptions().fold_max
     folds = 0

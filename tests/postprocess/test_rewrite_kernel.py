@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from pp_helpers import first_layers
 
 import printability._rewrite_kernel as rk
-import printability.postprocess as pp
+import printability.postprocess.pipeline as pipeline
 from gcode.writer import format_number
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 from printability.rewrite import rewrite, rewrite_reference
@@ -93,9 +93,9 @@ def _both(data: bytes, **kw) -> tuple[bytes, bytes, list[int]]:
     opts = PostprocessOptions(**kw)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(rk, "rewrite_kernel", spy)
-        mp.setattr(pp, "rewrite", rewrite)
+        mp.setattr(pipeline, "rewrite", rewrite)
         fast, res_fast = postprocess_bytes(data, options=opts)
-        mp.setattr(pp, "rewrite", rewrite_reference)
+        mp.setattr(pipeline, "rewrite", rewrite_reference)
         slow, res_slow = postprocess_bytes(data, options=opts)
     assert (res_fast.changed_lines, res_fast.inserted_lines, res_fast.rotary_words) == \
         (res_slow.changed_lines, res_slow.inserted_lines, res_slow.rotary_words)

@@ -218,13 +218,14 @@ def test_the_memory_guard_knows_a_planned_run_needs_more(prusa_short, tmp_path, 
     estimates."""
     import printability.postprocess as pp
     from printability.errors import ResourceError
+    from printability.postprocess import memory
     from printability.settings import Settings
 
     path = tmp_path / "part.gcode"
     path.write_bytes(prusa_short.read_bytes())
     size = path.stat().st_size
-    limit = (pp.BYTES_PER_BYTE_KEPT + pp.BYTES_PER_BYTE_PLANNED) * size // 2
-    monkeypatch.setattr(pp, "DEFAULT_SETTINGS", Settings(max_memory=limit))
+    limit = (memory.BYTES_PER_BYTE_KEPT + memory.BYTES_PER_BYTE_PLANNED) * size // 2
+    monkeypatch.setattr(memory, "DEFAULT_SETTINGS", Settings(max_memory=limit))
     before = path.read_bytes()
     opts = pp.PostprocessOptions(nozzle=nozzle)
     if refused:
@@ -236,7 +237,7 @@ def test_the_memory_guard_knows_a_planned_run_needs_more(prusa_short, tmp_path, 
         pp.postprocess_file(path, options=opts)
         assert b"; printability " in path.read_bytes()
     # and below the least estimate, nothing is read
-    monkeypatch.setattr(pp, "DEFAULT_SETTINGS", Settings(max_memory=size))
+    monkeypatch.setattr(memory, "DEFAULT_SETTINGS", Settings(max_memory=size))
     monkeypatch.setattr(Path, "read_bytes", lambda self: pytest.fail("the file was read"))
     with pytest.raises(ResourceError, match="MiB of G-code would need about"):
         pp.postprocess_file(tmp_path / "part.gcode", options=opts)
