@@ -10,7 +10,7 @@ The writer, the post-processor, ``generate``, the simulator and the tests read
 these objects; nothing else compares flavor names.
 
 What each firmware does was checked in its sources and documentation
-(``../shared/DESIGN.md`` §3 has the table; Klipper ``klippy/extras/manual_stepper.py``
+(``docs/design.md`` §3 has the table; Klipper ``klippy/extras/manual_stepper.py``
 and ``klippy/toolhead.py`` of v0.13, Marlin 2.1 ``Configuration.h`` ``AXIS4_NAME`` /
 ``AXIS4_ROTATES`` and ``G92``/``M114``, RepRapFirmware 3 ``M584 … R1 S1``):
 

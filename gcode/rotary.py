@@ -3,7 +3,7 @@
 Plain functions on plain numbers (no geometry engine), shared by the writer,
 the post-processor and the generator.
 
-Conventions (DESIGN.md §3)
+Conventions (docs/design.md §3)
 --------------------------
 * Angles are in degrees, positive counter-clockwise about +Z. The rotary
   coordinate written to the file is *unwrapped*: each new value is the

@@ -9,7 +9,7 @@ Two ways to produce lines:
   replaces or adds address words and keeps every other byte of the line
   (spacing, comment, line terminator) as it was.
 
-Rotary conventions (DESIGN.md §3): the axis letter is configurable (ISO 841:
+Rotary conventions (docs/design.md §3): the axis letter is configurable (ISO 841:
 C turns about Z), coordinates are degrees, unwrapped (shortest signed step),
 a nozzle with a symmetry period (an ellipse: 180°) is turned to the nearest
 equivalent orientation, a round nozzle (period 0) gets no rotary word at all,

@@ -1,6 +1,6 @@
 """The serial host: stream G-code to a Marlin-like printer and lose nothing.
 
-It speaks bytes and G-code lines only (DESIGN.md §1): nothing here knows of
+It speaks bytes and G-code lines only (docs/design.md §1): nothing here knows of
 geometry. The pieces:
 
 - :mod:`machine_io.protocol` — framing (line numbers, checksums) and reply parsing;

@@ -4,7 +4,7 @@ A :class:`Nozzle` is one or several orifices (:class:`Footprint`) fixed on one
 carriage, given in the nozzle frame (origin = the point the machine positions
 and the axis the rotary joint turns about; see :mod:`printability.geometry`).
 
-SPEC syntax (DESIGN.md §4), parsed by :func:`parse_nozzle` from the kinds in
+SPEC syntax (docs/design.md §4), parsed by :func:`parse_nozzle` from the kinds in
 :data:`printability.options.NOZZLE_KINDS`::
 
     circle:d=0.4                  round, diameter 0.4 mm (or r=0.2)

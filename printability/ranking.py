@@ -1,6 +1,6 @@
 """Ranking candidate nozzles: least material lost first, then the fastest build.
 
-DESIGN.md §2: ranking = ascending λ(G \\ S) (area for one layer, volume over
+docs/design.md §2: ranking = ascending λ(G \\ S) (area for one layer, volume over
 layers), ties broken by an estimated build time.
 
 Certified ranks
@@ -28,7 +28,7 @@ constant feed:
 
 with v the deposition speed (``speed``, mm/s) and w the bead width of the
 nozzle. On a machine with a rotary axis the motion planner turns an
-asymmetric nozzle to lay its widest bead where it fits (DESIGN.md §3), so
+asymmetric nozzle to lay its widest bead where it fits (docs/design.md §3), so
 w = ``max_width``; on an XY machine the nozzle cannot turn and paths run in
 every direction, so w is the mean bead width over directions (for a circle
 both are the diameter). Each orifice of a multi-orifice head lays its own

@@ -1,4 +1,4 @@
-"""The virtual T-T-R printer (DESIGN.md §1, §5).
+"""The virtual T-T-R printer (docs/design.md §1, §5).
 
 A software printer that real hosts talk to as if it were hardware — Marlin's
 host protocol with line numbers, checksums, resends, busy and temperature

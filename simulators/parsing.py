@@ -1,7 +1,7 @@
 """Command parsing inside the simulated firmware.
 
 The words of a command are read with pygcode (the design card's independent
-parser, DESIGN.md §6) so that the simulator cross-checks the project's own
+parser, docs/design.md §6) so that the simulator cross-checks the project's own
 reader in ``gcode/``. pygcode models CNC G-code and refuses several things a
 3-D printer firmware accepts; those are handled here the way Marlin's
 ``GCodeParser`` does:

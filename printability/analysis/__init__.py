@@ -4,7 +4,7 @@
 :class:`~printability.layers.LayerStack` for every candidate nozzle, sums
 areas and volumes, ranks the nozzles (:mod:`printability.ranking`) and returns
 an immutable :class:`Analysis` whose :meth:`Analysis.to_json` is the JSON
-contract of DESIGN.md §4.
+contract of docs/design.md §4.
 
 Layers are independent, so they run in parallel: ``settings.workers``
 processes on this machine, or a Dask cluster when ``scheduler`` names one

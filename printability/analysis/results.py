@@ -1,7 +1,7 @@
 """What an analysis returns: per layer, per nozzle, for the part, and what refinement did.
 
 :class:`Analysis` is immutable; :meth:`Analysis.to_json` is the JSON contract of
-DESIGN.md §4, assembled from :meth:`NozzleAnalysis.to_json`,
+docs/design.md §4, assembled from :meth:`NozzleAnalysis.to_json`,
 :meth:`LayerOutcome.to_json` and :meth:`Refinement.to_json`.
 """
 
@@ -193,7 +193,7 @@ class Analysis:
                      for i, j in ties(b))
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON document of DESIGN.md §4 (plain dicts, lists and floats)."""
+        """The JSON document of docs/design.md §4 (plain dicts, lists and floats)."""
         return {
             "input": self.input,
             "units": "mm",

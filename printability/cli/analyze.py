@@ -1,4 +1,4 @@
-"""``printability analyze``: rank nozzles on a sliced part (DESIGN.md §4)."""
+"""``printability analyze``: rank nozzles on a sliced part (docs/design.md §4)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Each subcommand lives in its own module of this package and exposes
 ``register(app)``; this module only assembles them and turns library errors
-into the exit-code contract of DESIGN.md §4: 0 success, 1 a clear one-paragraph
+into the exit-code contract of docs/design.md §4: 0 success, 1 a clear one-paragraph
 error on stderr, 2 usage.
 """
 

@@ -1,4 +1,4 @@
-"""``printability postprocess``: turn a slicer's G-code into rotary-axis G-code (DESIGN.md §4).
+"""``printability postprocess``: turn a slicer's G-code into rotary-axis G-code (docs/design.md §4).
 
 Run by a PrusaSlicer-family slicer as a post-processing script, the G-code
 path is the last argument and the file is rewritten in place; the slicer's

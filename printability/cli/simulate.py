@@ -1,4 +1,4 @@
-"""``printability simulate``: start the virtual T-T-R printer (DESIGN.md §4).
+"""``printability simulate``: start the virtual T-T-R printer (docs/design.md §4).
 
 A thin adapter over :mod:`simulators`: build the configuration, start a pty
 or TCP server, print the port on the first line of stdout, run until Ctrl-C /

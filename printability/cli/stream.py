@@ -1,4 +1,4 @@
-"""``printability stream``: send a G-code file to a printer over serial (DESIGN.md §4).
+"""``printability stream``: send a G-code file to a printer over serial (docs/design.md §4).
 
 A thin adapter over :class:`machine_io.Host`: parse options, connect, stream
 with a progress display (a live bar in a terminal, a line at each quarter of

@@ -1,7 +1,7 @@
 """The exact (vector) MMC engine: P and S as shapely polygons, with certified bounds.
 
 For a separable machine (XY, T-T-R) the nozzle at angle φ is the footprint
-A_φ = R(φ)·A⁰ and (DESIGN.md §2, conventions in :mod:`printability.geometry`)
+A_φ = R(φ)·A⁰ and (docs/design.md §2, conventions in :mod:`printability.geometry`)
 
     P_φ = {t : A_φ + t ⊆ G} = G ⊖ A_φ,      S = ∪_φ (P_φ ⊕ A_φ).
 

@@ -11,7 +11,7 @@ configuration u exactly when m(u)⁻¹·Y ∈ A⁰. So, on a separable machine
   :meth:`Machine.angles`;
 * C[u]: some interior sample Q has m(u)⁻¹·Q in the orifice; B[u]: some boundary
   sample Y has m(u)⁻¹·Y in the orifice; **P = C \\ B** (for a head with several
-  orifices: every orifice in C and none in B, see DESIGN.md §2);
+  orifices: every orifice in C and none in B, see docs/design.md §2);
 * S = ∪_{u∈P} A^u as a shapely union of placed footprints.
 
 At a fixed angle the inverse trajectory of Y, {t : m(t, φ)⁻¹·Y ∈ A⁰} = Y − R(φ)A⁰,

@@ -1,4 +1,4 @@
-"""Motion synthesis (DESIGN.md §3): what the nozzle does, move by move.
+"""Motion synthesis (docs/design.md §3): what the nozzle does, move by move.
 
 * :mod:`printability.motion.orientation` — the MMC-safe nozzle orientation of
   every extruding move (bead width as planned, turning least), splitting what
