@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from pp_helpers import geos_targets
 
+import printability._rewrite_kernel as rk
 import printability.motion.orientation as orientation
 import printability.postprocess.pipeline as pipeline
 from gcode import parse_gcode
@@ -24,7 +25,6 @@ from printability.motion.check import check_deposition, extrusion_chords
 from printability.motion.turns import turning_fits
 from printability.nozzle import parse_nozzle
 from printability.postprocess import PostprocessOptions, postprocess_bytes
-from printability.rewrite import rewrite, rewrite_reference
 
 HERE = Path(__file__).parent
 PART = HERE / "data" / "flavor_part.gcode"
@@ -66,14 +66,22 @@ def test_piece_turns_ride_on_the_moves_and_stay_inside(monkeypatch):
 
 
 def test_the_compiled_rewrite_writes_the_reference_with_piece_folds(monkeypatch):
-    new = _run()
+    statuses = []
+    kernel = rk.rewrite_kernel
+
+    def spy(*a):
+        r = kernel(*a)
+        statuses.append(int(r[0]))
+        return r
+
     with monkeypatch.context() as mp:
-        mp.setattr(pipeline, "rewrite", rewrite_reference)
+        mp.setattr(rk, "rewrite_kernel", spy)
+        new = _run()
+    assert statuses == [rk.OK]
+    with monkeypatch.context() as mp:
+        mp.setattr(rk, "rewrite_compiled", lambda *a: None)  # the reference writes it all
         ref = _run()
     assert new == ref
-    with monkeypatch.context() as mp:
-        mp.setattr(pipeline, "rewrite", rewrite)
-        assert _run() == ref
 
 
 def test_piece_folds_are_the_turning_footprint_test(monkeypatch):

@@ -135,7 +135,8 @@ def test_vector_planned_turn(angles):
     assert planned_turns(a).tolist() == want
 
 
-# ---- the compiled rewrite pass (printability._rewrite_kernel) against the Python it replaces
+# ---- the compiled rewrite pass's line shape (printability._text_kernel) against the Python it
+# replaces
 
 
 def _span(raw: bytes) -> tuple[int, int]:
@@ -148,7 +149,7 @@ def _span(raw: bytes) -> tuple[int, int]:
 @settings(max_examples=800)
 @given(_odd_lines())
 def test_compiled_line_shape_is_the_expression(raw):
-    from printability._rewrite_kernel import simple_span
+    from printability._text_kernel import simple_span
 
     assert simple_span(np.frombuffer(raw, np.uint8), 0, len(raw)) == _span(raw), raw
 
@@ -157,7 +158,7 @@ def test_compiled_line_shape_is_the_expression(raw):
 @given(st.binary(max_size=40).map(lambda b: b.replace(b"\n", b" ").replace(b"\r", b" ")),
        st.sampled_from([b"", b"\n", b"\r\n", b"\r"]))
 def test_compiled_line_shape_on_random_bytes(body, eol):
-    from printability._rewrite_kernel import simple_span
+    from printability._text_kernel import simple_span
 
     for raw in (b"G1 " + body + eol, body + eol, b"G1 X1 " + body[:3] + eol):
         assert simple_span(np.frombuffer(raw, np.uint8), 0, len(raw)) == _span(raw), raw

@@ -1,8 +1,8 @@
 """The compiled rewrite pass writes the bytes of the Python reference.
 
 Oracles: :func:`gcode.writer.format_number` (printf's correctly rounded digits)
-for the compiled number formatting, ``float()`` for its number reading,
-:func:`printability.rewrite.rewrite_reference` for the whole pass, on real
+for the compiled number formatting (:mod:`printability._text_kernel`), ``float()`` for its
+number reading, :func:`printability.rewrite.rewrite_reference` for the whole pass, on real
 slicer files under every option that changes what is written (bounded axis,
 unwind, feed policy, absolute E, spiral vase climbs, an offset orifice).
 """
@@ -18,15 +18,14 @@ from hypothesis import strategies as st
 from pp_helpers import first_layers
 
 import printability._rewrite_kernel as rk
-import printability.postprocess.pipeline as pipeline
+import printability._text_kernel as tk
 from gcode.writer import format_number
 from printability.postprocess import PostprocessOptions, postprocess_bytes
-from printability.rewrite import rewrite, rewrite_reference
 
 
 def _formatted(v: float, d: int) -> bytes | None:
     buf = np.zeros(64, np.uint8)
-    n = rk.put_fixed(buf, 0, v, d)
+    n = tk.put_fixed(buf, 0, v, d)
     return None if n < 0 else buf[:n].tobytes()
 
 
@@ -66,7 +65,7 @@ _texts = st.one_of(
 @given(_texts)
 def test_compiled_number_reading_is_float(text):
     raw = text.encode()
-    ok, value = rk.parse_number(np.frombuffer(raw, np.uint8), 0, len(raw))
+    ok, value = tk.parse_number(np.frombuffer(raw, np.uint8), 0, len(raw))
     digits = len(text.lstrip("+-").replace(".", "").lstrip("0"))
     if digits <= 15:
         assert ok
@@ -76,12 +75,13 @@ def test_compiled_number_reading_is_float(text):
 
 def test_compiled_number_reading_declines():
     for text in (b"", b"-", b".", b"1.2.3", b"1e3", b"1234567890123456", b"0x1"):
-        ok, _ = rk.parse_number(np.frombuffer(text, np.uint8), 0, len(text))
+        ok, _ = tk.parse_number(np.frombuffer(text, np.uint8), 0, len(text))
         assert not ok, text
 
 
 def _both(data: bytes, **kw) -> tuple[bytes, bytes, list[int]]:
-    """The post-processed file through the compiled pass and through the reference."""
+    """The post-processed file through the compiled pass and through the reference (the
+    compiled pass declining every file)."""
     statuses = []
     kernel = rk.rewrite_kernel
 
@@ -93,9 +93,8 @@ def _both(data: bytes, **kw) -> tuple[bytes, bytes, list[int]]:
     opts = PostprocessOptions(**kw)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(rk, "rewrite_kernel", spy)
-        mp.setattr(pipeline, "rewrite", rewrite)
         fast, res_fast = postprocess_bytes(data, options=opts)
-        mp.setattr(pipeline, "rewrite", rewrite_reference)
+        mp.setattr(rk, "rewrite_compiled", lambda *a: None)
         slow, res_slow = postprocess_bytes(data, options=opts)
     assert (res_fast.changed_lines, res_fast.inserted_lines, res_fast.rotary_words) == \
         (res_slow.changed_lines, res_slow.inserted_lines, res_slow.rotary_words)
