@@ -59,7 +59,7 @@ class PrintabilityRotary(Script):
                 os.unlink(path)
             except OSError:
                 pass
-        return split_layers(text)
+        return split_like(text, data)
 
 
 def _report(text):
@@ -68,10 +68,51 @@ def _report(text):
         from UM.Logger import Logger
         from UM.Message import Message
     except ImportError:  # outside Cura (tests)
-        print("printability: " + text)
+        print(text if text.startswith("printability") else "printability: " + text)
         return
     Logger.log("e", "printability: %s", text)
     Message(text, title="printability: G-code left unchanged").show()
+
+
+def split_like(text, chunks):
+    """Cut the processed text into Cura's chunks again, each starting where it started.
+
+    Cura's list is its header, the start code, one chunk per layer (from its ';LAYER:' line)
+    and the end code; scripts after ours (pause at height, timelapse) index it by layer. Each
+    chunk's first line is found again in the processed text (its n-th occurrence, as in the
+    original: printability keeps every line outside the part's extrusions byte for byte and
+    only inserts lines), so the list keeps its length and boundaries. If a boundary cannot be
+    found (a chunk that starts with a rewritten move), the text is cut at every ';LAYER:' line
+    instead.
+    """
+    wanted = {}  # line -> [(occurrence, chunk index)]
+    seen = {}
+    for k, chunk in enumerate(chunks):
+        lines = chunk.splitlines(keepends=True)
+        if k and lines:
+            wanted.setdefault(lines[0], []).append((seen.get(lines[0], 0), k))
+        for line in lines:
+            seen[line] = seen.get(line, 0) + 1
+    if len(chunks) <= 1:
+        return [text]
+    starts, counts, pos = {}, {}, 0
+    for line in text.splitlines(keepends=True):
+        if line in wanted:
+            n = counts.get(line, 0)
+            for occurrence, k in wanted[line]:
+                if occurrence == n:
+                    starts[k] = pos
+            counts[line] = n + 1
+        pos += len(line)
+    for k in range(len(chunks) - 1, 0, -1):  # an empty chunk stays empty, before the next
+        if not chunks[k]:
+            starts[k] = starts.get(k + 1, len(text))
+    cuts = [starts.get(k) for k in range(1, len(chunks))]
+    if None in cuts or cuts != sorted(cuts):
+        return split_layers(text)
+    bounds = [0, *cuts, len(text)]
+    # (no itertools.pairwise: Cura 4's bundled Python is 3.8)
+    return [text[bounds[i]:bounds[i + 1]] for i in range(len(bounds) - 1)]
 
 
 def split_layers(text):

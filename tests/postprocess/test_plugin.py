@@ -2,11 +2,8 @@
 
 from __future__ import annotations
 
-import importlib
 import json
-import shutil
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest
@@ -39,36 +36,41 @@ def test_prusaslicer_entry_point_in_place(prusa_short, tmp_path, monkeypatch):
     assert main(["--nozzle", ELLIPSE, str(missing)]) == 1
 
 
-@pytest.fixture()
-def cura_scripts(tmp_path, monkeypatch):
-    """Cura's package layout: PostProcessingPlugin/Script.py + scripts/<our shim>."""
-    pkg = tmp_path / "PostProcessingPlugin"
-    (pkg / "scripts").mkdir(parents=True)
-    (pkg / "__init__.py").write_text("")
-    (pkg / "scripts" / "__init__.py").write_text("")
-    # Cura's Script base class as far as the shim uses it: settings from the JSON defaults
-    (pkg / "Script.py").write_text(textwrap.dedent('''
-        import json
-        class Script:
-            def __init__(self):
-                doc = json.loads(self.getSettingDataString())
-                self._values = {k: v["default_value"] for k, v in doc["settings"].items()}
-            def getSettingValueByKey(self, key):
-                return self._values[key]
-    '''))
-    for name in ("PrintabilityRotary.py", "printability_rotary.json"):
-        shutil.copy(ROOT / "plugin" / "cura" / name, pkg / "scripts" / name)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    mod = importlib.import_module("PostProcessingPlugin.scripts.PrintabilityRotary")
-    yield mod
-    for key in [k for k in sys.modules if k.startswith("PostProcessingPlugin")]:
-        del sys.modules[key]
+# Uranium 4.13 (Cura's settings library), UM/Settings/SettingDefinition.py: the properties a
+# setting may have, those it must have, the setting types registered by Uranium and Cura, and
+# the properties that are Python expressions (strings) rather than values.
+_URANIUM_PROPERTIES = {
+    "label", "type", "icon", "unit", "description", "warning_description", "error_description",
+    "default_value", "value", "enabled", "minimum_value", "maximum_value",
+    "minimum_value_warning", "maximum_value_warning", "options", "comments", "allow_empty",
+    "is_uuid", "regex_blacklist_pattern", "warning_value", "error_value",
+    # added by Cura (cura/CuraApplication.py), and the nesting key
+    "resolve", "settable_per_mesh", "settable_per_extruder", "settable_per_meshgroup",
+    "settable_globally", "limit_to_extruder", "children"}
+_URANIUM_REQUIRED = {"label", "type", "description"}
+_URANIUM_TYPES = {"int": int, "float": (int, float), "str": str, "bool": bool, "enum": str,
+                  "[int]": str, "polygon": list, "polygons": list, "extruder": str,
+                  "optional_extruder": str, "category": str}
+_URANIUM_FUNCTIONS = {"value", "enabled", "minimum_value", "maximum_value",
+                      "minimum_value_warning", "maximum_value_warning", "allow_empty", "is_uuid",
+                      "warning_value", "error_value", "resolve", "limit_to_extruder"}
 
 
 def test_cura_settings_json_is_valid():
+    """The script's settings as Cura's PostProcessingPlugin loads them (a definition container
+    of version 2 whose settings Uranium's SettingDefinition accepts)."""
     doc = json.loads((ROOT / "plugin" / "cura" / "printability_rotary.json").read_text())
     assert doc["key"] == "PrintabilityRotary" and doc["version"] == 2
+    assert isinstance(doc["name"], str) and isinstance(doc["metadata"], dict)
     assert {"nozzle", "machine", "extra", "executable", "timeout"} <= set(doc["settings"])
+    for key, setting in doc["settings"].items():
+        assert key.isidentifier(), key
+        assert _URANIUM_REQUIRED <= set(setting) <= _URANIUM_PROPERTIES, key
+        assert setting["type"] in _URANIUM_TYPES, key
+        assert isinstance(setting["default_value"], _URANIUM_TYPES[setting["type"]]), key
+        for prop in _URANIUM_FUNCTIONS & set(setting):
+            assert isinstance(setting[prop], str), (key, prop)
+            compile(setting[prop], key, "eval")
 
 
 def test_cura_shim_runs_the_cli_on_cura_gcode(cura_scripts, shared_data):
