@@ -32,7 +32,7 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["main"]
+__all__ = ["build_argv", "main", "missing_file_message"]
 
 
 def build_argv(argv: list[str], environ: dict[str, str] | None = None) -> list[str]:
@@ -51,9 +51,27 @@ def build_argv(argv: list[str], environ: dict[str, str] | None = None) -> list[s
     return ["postprocess", *extra, *options, gcode]
 
 
+def missing_file_message(path: str) -> str:
+    """The paragraph for a slicer's call whose last argument names no file."""
+    return (f"printability: error: the slicer asked to post-process {path!r}, but there is no "
+            "file there. A slicer appends the path of the G-code it just wrote (a temporary "
+            "copy such as NAME.gcode.pp, or the plate's file in OrcaSlicer and Bambu Studio) "
+            "as the last argument: check that the post-processing field ends with the options "
+            "(nothing after them; OrcaSlicer and Bambu Studio also cut the field into separate "
+            "commands at every ';'), and that no other script before this one moved or "
+            "renamed the file.")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``printability postprocess`` the way a slicer calls a script; returns the exit code."""
     args = build_argv(sys.argv[1:] if argv is None else argv)
+    path = args[-1]
+    if not path.startswith("-") and not os.path.exists(path):
+        import textwrap
+
+        print(textwrap.fill(missing_file_message(path), width=100, break_on_hyphens=False,
+                            break_long_words=False), file=sys.stderr)
+        return 1
     from printability.server_client import run_served
 
     rc = run_served(args)

@@ -36,6 +36,17 @@ def test_prusaslicer_entry_point_in_place(prusa_short, tmp_path, monkeypatch):
     assert main(["--nozzle", ELLIPSE, str(missing)]) == 1
 
 
+def test_a_slicer_passing_no_file_is_told_why(tmp_path, capsys):
+    """OrcaSlicer/Bambu Studio cut the field at ';' and pass temporary paths: a missing file is
+    explained as the slicer's call, in one paragraph, without starting the work."""
+    path = tmp_path / ".1234.0.gcode.pp"
+    assert main(["--nozzle", ELLIPSE, str(path)]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert err.startswith("printability: error: the slicer asked to post-process")
+    assert str(path) in err and "last argument" in err and "';'" in err
+    assert "Traceback" not in err
+
+
 # Uranium 4.13 (Cura's settings library), UM/Settings/SettingDefinition.py: the properties a
 # setting may have, those it must have, the setting types registered by Uranium and Cura, and
 # the properties that are Python expressions (strings) rather than values.
