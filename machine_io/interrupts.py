@@ -22,7 +22,7 @@ from typing import Any
 
 import serial
 
-from machine_io.program import restore_commands, state_at
+from machine_io.machine_state import restore_commands, state_at
 from machine_io.protocol import command_code, parse_reply
 from machine_io.resend import _Stop
 from machine_io.session import Progress

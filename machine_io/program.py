@@ -13,16 +13,17 @@ is sent by the same rules: the commands of the same G-code as text, in the same 
 Line numbers (messages, ``--resume-from``) are then those of the decoded G-code, which
 has neither the thumbnails nor the metadata of the text file.
 
-The state tracker (:class:`MachineState`, :func:`state_at`) follows the modal
-state the firmware would have after a given line — positions including the
-rotary axis and E, absolute/relative modes, feed rate, temperatures, fan — so
-that a print can be resumed after a lost connection.
+The state tracker (:class:`MachineState`, :func:`state_at`, in
+:mod:`machine_io.machine_state`) follows the modal state the firmware would
+have after a given line — positions including the rotary axis and E,
+absolute/relative modes, feed rate, temperatures, fan — so that a print can be
+resumed after a lost connection. The commands are stored packed
+(:mod:`machine_io.packed`).
 """
 
 from __future__ import annotations
 
 import io
-import itertools
 import math
 import os
 import re
@@ -30,11 +31,13 @@ import stat
 import struct
 from array import array
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO, overload
+from typing import BinaryIO
 
 from gcode.bgcode import decode_bgcode, is_bgcode
+from machine_io.machine_state import MachineState, command_words, restore_commands, state_at
+from machine_io.packed import PackedNumbers, PackedTexts
 from machine_io.protocol import EXTRA_AXES, command_code
 from machine_io.session import StreamReport
 from printability.base.errors import InputError, PrintabilityOSError, ResourceError, excerpt
@@ -54,12 +57,9 @@ __all__ = [
 ]
 
 _FRAMED = re.compile(r"^[Nn]\d+\s*(.*?)\s*(?:\*\d+)?$")
-_WORD = re.compile(r"([A-Za-z])\s*([+-]?(?:\d+\.?\d*|\.\d+))")
 _CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")
 # Marlin's MAX_CMD_SIZE: longer lines are cut by the firmware.
 DEFAULT_MAX_LINE = 96
-_HEATING_WAITS = {"M109": "T", "M190": "B", "M191": "C"}
-_HEATING_SETS = {"M104": "T", "M140": "B", "M141": "C"}
 # A file is read in pieces of this size: the whole file is never in memory at once.
 _CHUNK = 1 << 20
 # Bytes a program keeps per command besides its text: end offset, file line, seconds.
@@ -74,120 +74,6 @@ MEATPACK_EXPANSION = 4
 _BG_HEADER = struct.Struct("<4sIH")  # magic, version, checksum type (gcode.bgcode's framing)
 _BG_BLOCK = struct.Struct("<HHI")  # type, compression, uncompressed size
 _BG_GCODE, _BG_THUMBNAIL = 1, 5
-
-
-class _Packed:
-    """Shared behaviour of the packed sequences: equality with any sequence, short repr."""
-
-    def __len__(self) -> int:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-    def __iter__(self) -> Iterator[Any]:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-    def __eq__(self, other: object) -> bool:
-        if isinstance(other, (_Packed, tuple, list)):
-            return len(self) == len(other) and all(
-                a == b for a, b in zip(self, other, strict=True))
-        return NotImplemented
-
-    def __hash__(self) -> int:
-        return hash(tuple(self))
-
-    def __repr__(self) -> str:
-        head = ", ".join(repr(v) for v in itertools.islice(self, 3))
-        more = ", …" if len(self) > 3 else ""
-        return f"{type(self).__name__}([{head}{more}], {len(self)} items)"
-
-
-class PackedTexts(_Packed, Sequence[str]):
-    """Command texts stored as one UTF-8 buffer and end offsets.
-
-    A tuple of millions of ``str`` costs about 70 bytes per command on top of
-    the text; this costs 8. Items are decoded when asked for; slices give tuples.
-
-    Parameters
-    ----------
-    blob
-        The texts, one after the other.
-    ends
-        End offset of each text in ``blob`` (the start is the previous end).
-    """
-
-    __slots__ = ("_blob", "_ends")
-
-    def __init__(self, blob: bytes | bytearray, ends: array) -> None:
-        self._blob = blob  # kept as given: a copy of a bytearray would double it for a moment
-        self._ends = ends
-
-    def __len__(self) -> int:
-        return len(self._ends)
-
-    def _span(self, i: int) -> tuple[int, int]:
-        return (self._ends[i - 1] if i else 0), self._ends[i]
-
-    @overload
-    def __getitem__(self, index: int) -> str: ...
-
-    @overload
-    def __getitem__(self, index: slice) -> tuple[str, ...]: ...
-
-    def __getitem__(self, index: int | slice) -> str | tuple[str, ...]:
-        if isinstance(index, slice):
-            return tuple(self[i] for i in range(*index.indices(len(self))))
-        n = len(self._ends)
-        if index < 0:
-            index += n
-        if not 0 <= index < n:
-            raise IndexError("command index out of range")
-        a, b = self._span(index)
-        return self._blob[a:b].decode("utf-8")
-
-    def __iter__(self) -> Iterator[str]:
-        blob = self._blob
-        a = 0
-        for b in self._ends:
-            yield blob[a:b].decode("utf-8")
-            a = b
-
-    def sizes(self) -> Iterator[int]:
-        """Length of each text in bytes (UTF-8), without decoding."""
-        a = 0
-        for b in self._ends:
-            yield b - a
-            a = b
-
-
-class PackedNumbers(_Packed, Sequence[Any]):
-    """Numbers in an :class:`array.array` (8 bytes each, not a Python object each).
-
-    Parameters
-    ----------
-    values
-        The numbers (``array("q")`` for line numbers, ``array("d")`` for seconds).
-    """
-
-    __slots__ = ("_values",)
-
-    def __init__(self, values: array) -> None:
-        self._values = values
-
-    def __len__(self) -> int:
-        return len(self._values)
-
-    @overload
-    def __getitem__(self, index: int) -> Any: ...
-
-    @overload
-    def __getitem__(self, index: slice) -> tuple[Any, ...]: ...
-
-    def __getitem__(self, index: int | slice) -> Any:
-        if isinstance(index, slice):
-            return tuple(self._values[index])
-        return self._values[index]
-
-    def __iter__(self) -> Iterator[Any]:
-        return iter(self._values)
 
 
 @dataclass(frozen=True)
@@ -587,170 +473,6 @@ def _too_big(path: Path, need: int, max_memory: int, binary: bool, text: int, *,
         f"--resume-from, or use a host with more memory.")
 
 
-def _words(text: str) -> dict[str, float]:
-    out: dict[str, float] = {}
-    code_end = 0
-    m = re.match(r"\s*[GMTgmt]\d+(?:\.\d+)?", text)
-    if m:
-        code_end = m.end()
-    for letter, value in _WORD.findall(text[code_end:]):
-        out[letter.upper()] = float(value)
-    return out
-
-
-@dataclass(frozen=True)
-class MachineState:
-    """Modal state of the firmware after some line of a program.
-
-    Attributes
-    ----------
-    position
-        Logical position of each axis (X, Y, Z, rotary axes, E), mm or degrees,
-        in the file's coordinates (after any G92 it issued).
-    absolute
-        G90 (True) or G91 (False) for X, Y, Z and rotary axes.
-    e_absolute
-        M82 (True) or M83 (False).
-    feed
-        Last F, mm/min (None before any).
-    temperatures
-        Last targets set: ``{"T": 210.0, "B": 60.0}``, °C.
-    fan
-        Last part-fan speed 0–255 (M106/M107), None before any.
-    inches
-        G20 in effect.
-    tool
-        Active tool number.
-    """
-
-    position: dict[str, float] = field(default_factory=dict)
-    absolute: bool = True
-    e_absolute: bool = True
-    feed: float | None = None
-    temperatures: dict[str, float] = field(default_factory=dict)
-    fan: int | None = None
-    inches: bool = False
-    tool: int = 0
-
-    def apply(self, command: str) -> MachineState:
-        """The state after ``command`` (a new object; this one is unchanged)."""
-        code = command_code(command)
-        if not code:
-            return self
-        if code in ("G0", "G1", "G2", "G3", "G92"):
-            words = _words(command)
-            pos = dict(self.position)
-            for letter, value in words.items():
-                if letter in "FIJKRPS":
-                    continue
-                if code == "G92":
-                    pos[letter] = value
-                elif letter == "E":
-                    pos["E"] = value if self.e_absolute else pos.get("E", 0.0) + value
-                elif letter in "XYZ" or letter in EXTRA_AXES:
-                    pos[letter] = value if self.absolute else pos.get(letter, 0.0) + value
-            if code == "G92" and not words:
-                pos = {k: 0.0 for k in pos} | {k: 0.0 for k in "XYZE"}
-            feed = words.get("F", self.feed) if code != "G92" else self.feed
-            return replace(self, position=pos, feed=feed)
-        if code == "G90":
-            return replace(self, absolute=True, e_absolute=True)
-        if code == "G91":
-            return replace(self, absolute=False, e_absolute=False)
-        if code == "M82":
-            return replace(self, e_absolute=True)
-        if code == "M83":
-            return replace(self, e_absolute=False)
-        if code in ("G20", "G21"):
-            return replace(self, inches=code == "G20")
-        if code in _HEATING_SETS or code in _HEATING_WAITS:
-            words = _words(command)
-            target = words.get("S", words.get("R"))
-            if target is None:
-                return self
-            key = _HEATING_SETS.get(code) or _HEATING_WAITS[code]
-            if key == "T" and "T" in words:
-                key = f"T{int(words['T'])}"
-            return replace(self, temperatures=self.temperatures | {key: target})
-        if code == "M106":
-            return replace(self, fan=int(_words(command).get("S", 255)))
-        if code == "M107":
-            return replace(self, fan=0)
-        if code[0] == "T" and code[1:].isdigit():
-            return replace(self, tool=int(code[1:]))
-        return self
-
-
-def state_at(program: Program, index: int) -> MachineState:
-    """The modal state after the first ``index`` commands of ``program`` have run."""
-    state = MachineState()
-    for command in itertools.islice(program.commands, index):
-        state = state.apply(command)
-    return state
-
-
-def restore_commands(state: MachineState, *, home_xy: bool, lift: float = 2.0,
-                     travel_feed: float = 3000.0) -> tuple[str, ...]:
-    """Commands that bring a freshly restarted printer back to ``state``.
-
-    Heats (set both, then wait, so bed and hotend heat together), declares Z,
-    the rotary angle and E where they were (the part is on the bed: Z cannot
-    be homed; a nozzle turned by a stepper keeps its angle through a reset),
-    lifts, homes X and Y if asked, travels back, lowers, then restores the
-    modes and the feed rate.
-
-    Parameters
-    ----------
-    state
-        The state to restore (see :func:`state_at`).
-    home_xy
-        Home X and Y first (the firmware restarted and lost its position).
-    lift
-        Z clearance for the travel back, mm.
-    travel_feed
-        Travel feed rate, mm/min.
-    """
-    out: list[str] = []
-    temps = state.temperatures
-    for key, value in temps.items():
-        if key == "B":
-            out.append(f"M140 S{value:g}")
-        elif key == "C":
-            out.append(f"M141 S{value:g}")
-        else:
-            out.append(f"M104 {'' if key == 'T' else 'T' + key[1:] + ' '}S{value:g}")
-    if "B" in temps:  # the bed is slowest: wait for it first
-        out.append(f"M190 S{temps['B']:g}")
-    for key, value in temps.items():
-        if key[0] == "T":
-            out.append(f"M109 {'' if key == 'T' else 'T' + key[1:] + ' '}S{value:g}")
-    if state.inches:
-        out.append("G20")
-    pos = state.position
-    out.append("G90")
-    declare = [f"{k}{pos[k]:.4f}" for k in ("Z", *sorted(EXTRA_AXES)) if k in pos]
-    if declare:
-        out.append("G92 " + " ".join(declare))
-    if "Z" in pos:
-        out.append(f"G1 Z{pos['Z'] + lift:.4f} F600")
-    if home_xy:
-        out.append("G28 X Y")
-    xy = [f"{k}{pos[k]:.4f}" for k in ("X", "Y") if k in pos]
-    if xy:
-        out.append(f"G1 {' '.join(xy)} F{travel_feed:g}")
-    if "Z" in pos:
-        out.append(f"G1 Z{pos['Z']:.4f} F600")
-    out.append(f"G92 E{pos.get('E', 0.0):.5f}")
-    out.append("M82" if state.e_absolute else "M83")
-    if not state.absolute:
-        out.append("G91")
-    if state.fan is not None:
-        out.append(f"M106 S{state.fan}")
-    if state.feed is not None:
-        out.append(f"G1 F{state.feed:g}")
-    return tuple(out)
-
-
 class _Estimator:
     """Cumulative motion time (s) after each command, and the axis letters moves use,
     one command at a time.
@@ -774,7 +496,7 @@ class _Estimator:
         total so far, s."""
         pos, inch = self.pos, self.inch
         if code in ("G0", "G1", "G2", "G3"):
-            words = _words(command)
+            words = command_words(command)
             if "F" in words and words["F"] > 0:
                 self.feed = words["F"] * inch
             dist2 = de = 0.0
@@ -794,7 +516,7 @@ class _Estimator:
             # An E-only move (retraction) takes its filament length over F.
             self.total += (math.sqrt(dist2) or abs(de)) / self.feed * 60.0
         elif code == "G92":
-            for letter, value in _words(command).items():
+            for letter, value in command_words(command).items():
                 self.axes.add(letter)
                 pos[letter] = value * inch
         elif code == "G90":
@@ -810,7 +532,7 @@ class _Estimator:
         elif code == "G21":
             self.inch = 1.0
         elif code == "G4":
-            words = _words(command)
+            words = command_words(command)
             self.total += words.get("S", 0.0) + words.get("P", 0.0) / 1000.0
         return self.total
 

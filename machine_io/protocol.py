@@ -247,6 +247,25 @@ class FirmwareInfo:
         return any(self.cap(c) for c in ("BUSY_PROTOCOL", "HOST_KEEPALIVE", "BUSY"))
 
     @property
+    def checks_line_numbers(self) -> bool:
+        """The firmware checks line numbers and refuses a copy of a line it has run (Marlin,
+        RepRapFirmware); Klipper strips numbers and checksums unread, so a copy would run
+        twice."""
+        return not self._reads_raw_lines
+
+    @property
+    def cuts_long_lines(self) -> bool:
+        """The firmware cuts a line past its buffer (Marlin's MAX_CMD_SIZE, the host's
+        ``max_line_length``); Klipper reads a whole line of any length from its
+        pseudo-terminal."""
+        return not self._reads_raw_lines
+
+    @property
+    def _reads_raw_lines(self) -> bool:
+        # Klipper's host software, whose name M115 reports as FIRMWARE_NAME:Klipper
+        return self.name.lower().startswith("klipper")
+
+    @property
     def axis_count(self) -> int | None:
         """``AXIS_COUNT`` of M115 (Marlin 2.1 with extra axes), None if not reported."""
         m = re.match(r"\d+", self.fields.get("AXIS_COUNT", ""))

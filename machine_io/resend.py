@@ -528,7 +528,7 @@ class ResendMixin:
                 and now >= self._last_rx + self._keepalive_limit()
                 and any(s.long for s in self._outstanding)
                 and not self._keepalive_known()
-                and not self.firmware.name.lower().startswith("klipper"))
+                and self.firmware.checks_line_numbers)
 
     def _take_waiting(self) -> None:
         """Handle every reply already received, before transmitting.

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import serial
 
-from machine_io.program import Program, check_line_lengths, restore_commands, state_at
+from machine_io.machine_state import restore_commands, state_at
+from machine_io.program import Program, check_line_lengths
 from machine_io.resend import _Stop
 from machine_io.session import Progress, StreamReport
 from printability.base.errors import InputError, PrinterError
@@ -85,54 +86,9 @@ class StreamingMixin:
             self._inject(restore_commands(state_at(program, start),
                                           home_xy=self.config.home_on_restore), start)
         previous_handlers = self._install_signals()
-        last_progress = 0.0
-        last_save = t0
         resume_path = Path(resume_file) if resume_file is not None else None
-        failure: str | None = None
-        state = "streaming"
         try:
-            while True:
-                try:
-                    if self._cancel.is_set():
-                        state = "cancelling"
-                        self._finish_cancel()
-                        if self._failed:
-                            failure = self._stop_reason
-                        break
-                    if self._pause.is_set():
-                        state = "paused"
-                        self._do_pause(on_progress)
-                        state = "streaming"
-                        continue
-                    done = self._cursor >= len(program) and self._next >= len(self._frames)
-                    if done and not self._outstanding:
-                        if self._finished():
-                            break
-                        continue
-                    self._pump_once(self._more, allow_new=True)
-                except _Stop:
-                    if self._restarted and not self._fatal:
-                        # The firmware restarted under us (its banner came): same link.
-                        if self._reconnect(reopen=False):
-                            continue
-                        self._failed = True
-                    failure = self._stop_reason or "stopped"
-                    break
-                except (serial.SerialException, OSError) as exc:
-                    self._note(f"the link failed: {exc}")
-                    if self._reconnect(reopen=True):
-                        continue
-                    failure = (f"the link to the printer failed ({exc})"
-                               + (f": {self._reconnect_failure}" if self._reconnect_failure
-                                  else " and could not be reopened"))
-                    break
-                now = time.monotonic()
-                if on_progress is not None and now - last_progress >= 0.1:
-                    last_progress = now
-                    on_progress(self._progress(state))
-                if resume_path is not None and now - last_save >= 2.0:
-                    last_save = now
-                    self._save_resume(resume_path)
+            failure = self._stream_loop(program, on_progress, resume_path, t0)
         except BaseException:
             # Whatever ended the loop unexpectedly (a progress callback that raised, a
             # KeyboardInterrupt outside the main thread's handler), the printer is heating
@@ -155,6 +111,59 @@ class StreamingMixin:
         return report
 
     # -- helpers of stream()
+    def _stream_loop(self, program: Program, on_progress: Callable[[Progress], None] | None,
+                     resume_path: Path | None, t0: float) -> str | None:
+        """Send, pause, cancel and recover until the program is done or cannot go on; why
+        it stopped short (None: it did not), reporting progress and saving the resume file
+        on the way."""
+        last_progress = 0.0
+        last_save = t0
+        failure: str | None = None
+        state = "streaming"
+        while True:
+            try:
+                if self._cancel.is_set():
+                    state = "cancelling"
+                    self._finish_cancel()
+                    if self._failed:
+                        failure = self._stop_reason
+                    break
+                if self._pause.is_set():
+                    state = "paused"
+                    self._do_pause(on_progress)
+                    state = "streaming"
+                    continue
+                done = self._cursor >= len(program) and self._next >= len(self._frames)
+                if done and not self._outstanding:
+                    if self._finished():
+                        break
+                    continue
+                self._pump_once(self._more, allow_new=True)
+            except _Stop:
+                if self._restarted and not self._fatal:
+                    # The firmware restarted under us (its banner came): same link.
+                    if self._reconnect(reopen=False):
+                        continue
+                    self._failed = True
+                failure = self._stop_reason or "stopped"
+                break
+            except (serial.SerialException, OSError) as exc:
+                self._note(f"the link failed: {exc}")
+                if self._reconnect(reopen=True):
+                    continue
+                failure = (f"the link to the printer failed ({exc})"
+                           + (f": {self._reconnect_failure}" if self._reconnect_failure
+                              else " and could not be reopened"))
+                break
+            now = time.monotonic()
+            if on_progress is not None and now - last_progress >= 0.1:
+                last_progress = now
+                on_progress(self._progress(state))
+            if resume_path is not None and now - last_save >= 2.0:
+                last_save = now
+                self._save_resume(resume_path)
+        return failure
+
     def _more(self) -> bool:
         """Append the next program command to the history; False at the end."""
         if self._cancel.is_set() or self._pause.is_set():
@@ -244,7 +253,7 @@ class StreamingMixin:
         # Marlin cuts a line past its MAX_CMD_SIZE (HostConfig.max_line_length); Klipper reads
         # a whole line of any length from its pseudo-terminal (its own start G-code registers
         # a rotary axis in about 100 bytes)
-        if not self.firmware.name.lower().startswith("klipper"):
+        if self.firmware.cuts_long_lines:
             check_line_lengths(program, self.config.max_line_length)
 
     def send_commands(self, commands: list[str] | tuple[str, ...]) -> None:

@@ -38,7 +38,7 @@ import shapely
 import shapely.affinity
 
 from gcode import parse_gcode
-from gcode.flavors import RotaryAxis
+from gcode.flavors import Flavor, RotaryAxis
 from gcode.printtime import estimate_print_time, format_duration
 from gcode.writer import Emitter, WriterOptions, header_lines
 from printability import __version__
@@ -176,6 +176,98 @@ def generate_gcode(
     t_start = time.perf_counter()
     noz = parse_nozzle(nozzle)
     mach = parse_machine(machine)
+    job = _job_settings(noz, mach, options)
+    turns, policy, wopts, temps = job.turns, job.policy, job.wopts, job.temps
+    v_per, v_inf, v_first = job.feeds
+    w_wall, w_fill = job.w_wall, job.w_fill
+    travel = job.travel
+
+    shift = _placement(layers, mach, center=options.center)
+    em = _open_program(job, mach)
+    pos = np.array([0.0, 0.0])
+    summary: list[dict[str, float]] = []
+    extruded = dropped = 0.0
+    prev_angle = 0.0
+    report = on_progress or (lambda stage, done, total: None)
+    report("planning the layers", 0, len(layers))
+    for li, layer in enumerate(layers):
+        h = layer.height if layer.height > 0 else w_wall / 2
+        region = layer.region
+        if shift != (0.0, 0.0):
+            region = shapely.affinity.translate(region, *shift)
+        walls, interior = perimeter_loops(region, w_wall, options.perimeters)
+        fill = infill_lines(interior, w_fill, options.infill_angle + 90.0 * (li % 2))
+        groups = order_groups(walls + fill, pos)
+        # coordinates are rounded when written: keep that displacement inside the tolerance
+        tgt = grown_target(region, options.tolerance - wopts.rounding)
+        em.raw(";LAYER_CHANGE")
+        em.raw(f";Z:{layer.z:g}")
+        em.raw(f";HEIGHT:{h:g}")
+        if li == 1:
+            em.raw(f"M104 S{temps['nozzle']:g}")
+            em.raw(f"M140 S{temps['bed']:g}")
+        layer_drop = 0.0
+        layer_len = 0.0
+        first_move = True
+        for grp in groups:
+            # one planning call per group: its chords in print order
+            chords = _group_chords(grp)
+            if chords is None:
+                continue
+            p0, p1, chained = chords
+            plan = plan_orientations(p0, p1, np.full(len(p0), grp.width), region, noz, mach,
+                                     options=options.orientation, previous=prev_angle,
+                                     prepared_target=tgt,
+                                     chained=chained if policy == "xy" else None)
+            feed = v_first if li == 0 else (v_inf if grp.kind == "sparse_infill" else v_per)
+            em.raw(f";TYPE:{_TYPE_NAMES[grp.kind]}")
+            em.raw(f";WIDTH:{grp.width:g}")
+            acc = np.array([extruded, layer_len, layer_drop, prev_angle])
+            run = _pieces(p0, p1, plan, noz, turns=turns, width=grp.width, acc=acc)
+            extruded, layer_len, layer_drop, prev_angle = acc.tolist()
+            done = emit(em, *run, z=layer.z, height=h, feed=feed, travel=travel,
+                        first_move=first_move)
+            if done is None:  # declined: the emitter itself (the same lines, or its error)
+                done = _emit_run(em, run, z=layer.z, height=h, feed=feed, travel=travel,
+                                 first_move=first_move)
+            first_move = done
+            pos = np.array([em.x, em.y])
+        dropped += layer_drop
+        summary.append({"z": layer.z, "target_area": layer.area,
+                        "lost_area": layer_drop * w_wall,
+                        "dropped_moves": 0, "dropped_length": layer_drop, "split_moves": 0})
+        report("planning the layers", li + 1, len(layers))
+    text, print_time = _close_program(em, job, mach, noz, options, summary, report)
+    res = GenerateResult(path=None, layers=len(layers), lines=text.count("\n"),
+                         extruded_length=extruded, dropped_length=dropped,
+                         rotations=em.rotations, elapsed=time.perf_counter() - t_start,
+                         summary=tuple(summary), print_time=print_time)
+    return text, res
+
+
+@dataclass(frozen=True)
+class _Job:
+    """The settings of one generation, read from the machine profile and the options."""
+
+    turns: bool  # the machine turns the nozzle
+    flavor: Flavor  # the machine's firmware flavor
+    policy: str  # feed policy
+    wopts: WriterOptions
+    temps: dict[str, float]  # nozzle, bed, first_layer_nozzle, first_layer_bed, °C
+    feeds: tuple[float, float, float]  # perimeter, infill, first layer, mm/min
+    travel: tuple[float, float, float, float, float]  # feed, retract length/feed, min, lift
+    w_wall: float  # wall bead width, mm
+    w_fill: float  # infill spacing, mm
+
+
+def _job_settings(noz: Nozzle, mach: Machine, options: GenerateOptions) -> _Job:
+    """Check the options against the machine and read its profile's tables.
+
+    Raises
+    ------
+    InputError
+        Bad options or profile values.
+    """
     if options.perimeters < 0:
         raise InputError(f"perimeters must be >= 0; got {options.perimeters}")
     period = noz.symmetry_period
@@ -217,108 +309,82 @@ def generate_gcode(
     w_fill = options.infill_spacing or noz.max_width
     if w_wall <= 0 or w_fill <= 0:
         raise InputError("wall width and infill spacing must be positive lengths in mm")
+    return _Job(turns, flavor, policy, wopts, temps, (v_per, v_inf, v_first),
+                (v_trav, r_len, r_feed, r_min, lift), w_wall, w_fill)
 
-    em = Emitter(wopts)
+
+def _open_program(job: _Job, mach: Machine) -> Emitter:
+    """The emitter, with the program's start: the machine's start G-code, the preamble, and
+    the rotary axis declared when the nozzle turns."""
+    em = Emitter(job.wopts)
     em.comment("generated by printability " + __version__)
-    shift = _placement(layers, mach, center=options.center)
-    em.extend(_template(mach, "start", list(flavor.start_gcode()), temps))
+    em.extend(_template(mach, "start", list(job.flavor.start_gcode()), job.temps))
     em.preamble()
-    if turns:
-        axis = RotaryAxis(**{**mach.rotary_axis.__dict__, "letter": wopts.letter})
-        em.extend(flavor.declare_rotary(axis))
-    pos = np.array([0.0, 0.0])
-    summary: list[dict[str, float]] = []
-    extruded = dropped = 0.0
-    prev_angle = 0.0
-    report = on_progress or (lambda stage, done, total: None)
-    report("planning the layers", 0, len(layers))
-    for li, layer in enumerate(layers):
-        h = layer.height if layer.height > 0 else w_wall / 2
-        region = layer.region
-        if shift != (0.0, 0.0):
-            region = shapely.affinity.translate(region, *shift)
-        walls, interior = perimeter_loops(region, w_wall, options.perimeters)
-        fill = infill_lines(interior, w_fill, options.infill_angle + 90.0 * (li % 2))
-        groups = order_groups(walls + fill, pos)
-        # coordinates are rounded when written: keep that displacement inside the tolerance
-        tgt = grown_target(region, options.tolerance - wopts.rounding)
-        em.raw(";LAYER_CHANGE")
-        em.raw(f";Z:{layer.z:g}")
-        em.raw(f";HEIGHT:{h:g}")
-        if li == 1:
-            em.raw(f"M104 S{temps['nozzle']:g}")
-            em.raw(f"M140 S{temps['bed']:g}")
-        layer_drop = 0.0
-        layer_len = 0.0
-        first_move = True
-        for grp in groups:
-            # one planning call per group: its chords in print order
-            chords = [(p[:-1], p[1:]) for p in grp.paths]
-            p0 = np.vstack([c[0] for c in chords])
-            p1 = np.vstack([c[1] for c in chords])
-            path_id = np.concatenate([np.full(len(c[0]), k) for k, c in enumerate(chords)])
-            keep = np.hypot(*(p1 - p0).T) > 1e-6
-            p0, p1, path_id = p0[keep], p1[keep], path_id[keep]
-            if len(p0) == 0:
-                continue
-            chained = np.zeros(len(p0), dtype=bool)
-            chained[1:] = path_id[1:] == path_id[:-1]
-            plan = plan_orientations(p0, p1, np.full(len(p0), grp.width), region, noz, mach,
-                                     options=options.orientation, previous=prev_angle,
-                                     prepared_target=tgt,
-                                     chained=chained if policy == "xy" else None)
-            feed = v_first if li == 0 else (v_inf if grp.kind == "sparse_infill" else v_per)
-            em.raw(f";TYPE:{_TYPE_NAMES[grp.kind]}")
-            em.raw(f";WIDTH:{grp.width:g}")
-            acc = np.array([extruded, layer_len, layer_drop, prev_angle])
-            run = _pieces(p0, p1, plan, noz, turns=turns, width=grp.width, acc=acc)
-            extruded, layer_len, layer_drop, prev_angle = acc.tolist()
-            travel = (v_trav, r_len, r_feed, r_min, lift)
-            done = emit(em, *run, z=layer.z, height=h, feed=feed, travel=travel,
-                        first_move=first_move)
-            if done is None:  # declined: the emitter itself (the same lines, or its error)
-                for ax, ay, bx, by, phi, w, fold in zip(*run, strict=True):
-                    if em.x is None or math.hypot(ax - em.x, ay - em.y) > 1e-6 or \
-                            first_move:
-                        _travel(em, (ax, ay), layer.z, None if math.isnan(phi) else phi,
-                                *travel)
-                        first_move = False
-                    em.extrude(bx, by, feed=feed, width=w, height=h,
-                               orientation=None if math.isnan(phi) else phi,
-                               turn_while_moving=None if math.isnan(fold) else fold)
-            else:
-                first_move = done
-            pos = np.array([em.x, em.y])
-        dropped += layer_drop
-        summary.append({"z": layer.z, "target_area": layer.area,
-                        "lost_area": layer_drop * w_wall,
-                        "dropped_moves": 0, "dropped_length": layer_drop, "split_moves": 0})
-        report("planning the layers", li + 1, len(layers))
+    if job.turns:
+        axis = RotaryAxis(**{**mach.rotary_axis.__dict__, "letter": job.wopts.letter})
+        em.extend(job.flavor.declare_rotary(axis))
+    return em
+
+
+def _group_chords(grp) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """A group's chords in print order, zero-length ones left out: starts, ends, and whether
+    each continues the path of the one before; None when none is left."""
+    chords = [(p[:-1], p[1:]) for p in grp.paths]
+    p0 = np.vstack([c[0] for c in chords])
+    p1 = np.vstack([c[1] for c in chords])
+    path_id = np.concatenate([np.full(len(c[0]), k) for k, c in enumerate(chords)])
+    keep = np.hypot(*(p1 - p0).T) > 1e-6
+    p0, p1, path_id = p0[keep], p1[keep], path_id[keep]
+    if len(p0) == 0:
+        return None
+    chained = np.zeros(len(p0), dtype=bool)
+    chained[1:] = path_id[1:] == path_id[:-1]
+    return p0, p1, chained
+
+
+def _emit_run(em: Emitter, run: tuple, *, z: float, height: float, feed: float,
+              travel: tuple, first_move: bool) -> bool:
+    """Write a group's pieces with the emitter itself (where the compiled
+    :func:`printability._emit_kernel.emit` declines): the same lines, or the emitter's error.
+    Returns whether the next piece still is the layer's first move."""
+    for ax, ay, bx, by, phi, w, fold in zip(*run, strict=True):
+        if em.x is None or math.hypot(ax - em.x, ay - em.y) > 1e-6 or first_move:
+            _travel(em, (ax, ay), z, None if math.isnan(phi) else phi, *travel)
+            first_move = False
+        em.extrude(bx, by, feed=feed, width=w, height=height,
+                   orientation=None if math.isnan(phi) else phi,
+                   turn_while_moving=None if math.isnan(fold) else fold)
+    return first_move
+
+
+def _close_program(em: Emitter, job: _Job, mach: Machine, noz: Nozzle,
+                   options: GenerateOptions, summary: list[dict[str, float]],
+                   report: Callable[[str, int, int], None]) -> tuple[str, float]:
+    """End the program (retract, postamble, the machine's end G-code), estimate its print
+    time, and put the header on it: the whole text, and the print time (s)."""
+    _, r_len, r_feed, _, _ = job.travel
     em.retract(r_len, feed=r_feed)
     em.postamble()
-    em.extend(_template(mach, "end", list(flavor.end_gcode()), temps))
-    notes = [f"walls at {w_wall:g} mm, infill spacing {w_fill:g} mm, "
+    em.extend(_template(mach, "end", list(job.flavor.end_gcode()), job.temps))
+    notes = [f"walls at {job.w_wall:g} mm, infill spacing {job.w_fill:g} mm, "
              f"{options.perimeters} perimeters",
              "lost area here = planned path left out (no nozzle angle keeps the bead inside "
              "the part) x wall width, not analyze's lost area (the part no nozzle position "
              "covers)"]
-    if turns:
-        notes.append(flavor.rotary_setup_note(mach.rotary_axis))
+    if job.turns:
+        notes.append(job.flavor.rotary_setup_note(mach.rotary_axis))
     body = em.text()
     report("estimating the print time", 0, 0)
     t = estimate_print_time(parse_gcode(body.encode()), limits=mach.planner,
                             rotary=RotaryAxis(**{**mach.rotary_axis.__dict__,
-                                                 "letter": wopts.letter}))
+                                                 "letter": job.wopts.letter}))
     notes.append(f"estimated print time on the firmware's planner (Klipper's look-ahead, the "
                  f"machine's [planner] limits): {format_duration(t.total)}")
-    head = header_lines(version=__version__, nozzle=noz.spec, machine=mach.spec, options=wopts,
-                        mode="generated", summary=summary, notes=notes, flavor=flavor.name)
+    head = header_lines(version=__version__, nozzle=noz.spec, machine=mach.spec,
+                        options=job.wopts, mode="generated", summary=summary, notes=notes,
+                        flavor=job.flavor.name)
     text = "".join(ln + "\n" for ln in head) + body
-    res = GenerateResult(path=None, layers=len(layers), lines=text.count("\n"),
-                         extruded_length=extruded, dropped_length=dropped,
-                         rotations=em.rotations, elapsed=time.perf_counter() - t_start,
-                         summary=tuple(summary), print_time=t.total)
-    return text, res
+    return text, t.total
 
 
 def _placement(layers: LayerStack, mach: Machine, *, center: bool) -> tuple[float, float]:

@@ -19,8 +19,9 @@ packages changed since it started (an edited or upgraded install), so it
 never runs code other than what is on disk.
 
 Nothing a client sends stops it. Each connection has its own thread, which
-reads the request within :data:`_REQUEST_TIMEOUT` s and :data:`_MAX_REQUEST`
-bytes and checks every field (:func:`check_request`); anything else is
+reads the request within :data:`_REQUEST_TIMEOUT` s and
+:data:`printability.server_connections.MAX_REQUEST` bytes and checks every
+field (:func:`check_request`); anything else is
 answered with a one-line refusal, and logged. Only the work itself is
 serialized, in the thread that called :func:`serve` (it swaps the process's
 environment, directory and standard streams): a silent or slow client holds
@@ -28,7 +29,8 @@ its own thread and nothing else. While a request waits or runs, its thread
 sends the client a heartbeat a second. A run removes the client's ticket just
 before it replaces the first file (:class:`_WriteGate`): when the client took
 it first (it stopped waiting and runs the command itself), the run writes
-nothing.
+nothing. The connections' side (reading, checking, queueing, heartbeats) is
+:mod:`printability.server_connections`; this module runs the queued requests.
 
 Complexity: per request the work itself, plus a stat of the packages' source
 files (about a millisecond) and a JSON round trip of the command's output.
@@ -42,33 +44,33 @@ import errno
 import io
 import os
 import queue
-import re
-import select
 import signal
 import socket
 import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from printability import __version__
 from printability.errors import PrintabilityOSError
 from printability.server_client import (
-    PROTOCOL,
-    TICKET_PREFIX,
-    MessageError,
     ServerAddressError,
     call,
     default_address,
     file_identities,
     forwarded,
-    read_message,
     secure_dir,
-    send_message,
     take_ticket,
+)
+from printability.server_connections import (
+    STOPPING,
+    TICKET_NAME,
+    Clients,
+    Job,
+    check_request,
+    printable,
 )
 
 __all__ = ["ServeResult", "check_request", "retain_freed_memory", "serve", "server_status",
@@ -76,11 +78,6 @@ __all__ = ["ServeResult", "check_request", "retain_freed_memory", "serve", "serv
 
 _PACKAGES = ("printability", "gcode", "machine_io", "plugin", "simulators")
 _REQUEST_TIMEOUT = 10.0  # s to receive a whole request once connected (then it is refused)
-_MAX_REQUEST = 8 << 20  # bytes; a slicer's whole environment is below 2 MiB (ARG_MAX)
-_MAX_CLIENTS = 32  # connections served at once; more are refused at once
-_MAX_ITEMS = 10_000  # arguments, variables or files in a request
-_HEARTBEAT = 1.0  # s between the empty frames sent to a client waiting for its reply
-_SEND_TIMEOUT = 10.0  # s for a reply (or a heartbeat) to leave; a client that does not read
 _TICKET_AGE = 86_400.0  # s after which a ticket left behind (its client killed) is removed
 _KEEP_BELOW = 64 << 20  # bytes: blocks up to this come from the heap and are reused
 _KEEP_FREE = 256 << 20  # bytes of freed heap kept for the next request
@@ -191,111 +188,6 @@ def _run_command(argv: list[str], cwd: str, env: dict[str, str]) -> tuple[int, s
     return rc, out.getvalue(), err.getvalue()
 
 
-# --- what a request may hold ------------------------------------------------------------
-
-class _Refusal(Exception):
-    """A request not served; the text is the one-line reason sent back and logged."""
-
-
-_FIELDS = {
-    "status": frozenset({"protocol", "version", "op"}),
-    "stop": frozenset({"protocol", "version", "op"}),
-    "run": frozenset({"protocol", "version", "op", "argv", "cwd", "env", "files", "ticket"}),
-}
-_TICKET = re.compile(TICKET_PREFIX + r"[0-9a-f]{32}\Z")
-
-
-def _show(value: object) -> str:
-    """A value for a one-line message: its repr, cut to 40 characters."""
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
-def _kind(value: object) -> str:
-    names = {str: "a string", bool: "true or false", int: "a number", float: "a number",
-             list: "a list", dict: "an object", type(None): "null"}
-    return names.get(type(value), type(value).__name__)
-
-
-def _text(value: object, what: str) -> str:
-    """``value`` when it is a string a file name, an argument or a variable can hold."""
-    if not isinstance(value, str):
-        raise _Refusal(f"malformed request: {what} must be a string, not {_kind(value)}")
-    if "\0" in value:
-        raise _Refusal(f"malformed request: {what} {_show(value)} contains a NUL character")
-    try:
-        os.fsencode(value)
-    except UnicodeError:
-        raise _Refusal(f"malformed request: {what} {_show(value)} cannot be encoded for the "
-                       "system") from None
-    return value
-
-
-def _collection(value: object, kind: type, what: str) -> None:
-    if not isinstance(value, kind):
-        raise _Refusal(f"malformed request: {what} must be {_kind(kind())}, not {_kind(value)}")
-    if len(value) > _MAX_ITEMS:
-        raise _Refusal(f"malformed request: {what} has {len(value)} items, more than "
-                       f"{_MAX_ITEMS}")
-
-
-def check_request(req: dict) -> str:
-    """The operation of a request (``run``, ``status`` or ``stop``) after checking each of
-    its fields; :class:`_Refusal` (an exception whose text is the reply's one-line reason)
-    otherwise.
-
-    A run's ``argv`` is a list of strings starting with ``postprocess``, ``cwd`` an absolute
-    path, ``env`` an object of ``SLIC3R_*``/``PRINTABILITY_*`` variables (strings, with no
-    ``=`` or NUL in a name and no NUL in a value), ``files`` an object mapping arguments to
-    four integers, ``ticket`` a ticket's name; strings hold no NUL and can be encoded as file
-    names. No other field is accepted.
-    """
-    protocol, version = req.get("protocol"), req.get("version")
-    if type(protocol) is not int or protocol != PROTOCOL or version != __version__:
-        raise _Refusal(f"this server is printability {__version__} (protocol {PROTOCOL})")
-    op = req.get("op")
-    if not isinstance(op, str) or op not in _FIELDS:
-        raise _Refusal(f"malformed request: expected a run, status or stop request, not op "
-                       f"{_show(op)}")
-    extra = sorted(set(req) - _FIELDS[op])
-    if extra:
-        raise _Refusal(f"malformed request: unexpected field {_show(extra[0])} in a {op} "
-                       "request")
-    if op != "run":
-        return op
-    missing = sorted(_FIELDS[op] - set(req))
-    if missing:
-        raise _Refusal(f"malformed request: a run needs the field {_show(missing[0])}")
-    argv = req["argv"]
-    _collection(argv, list, "argv")
-    for i, arg in enumerate(argv):
-        _text(arg, f"argv[{i}]")
-    cwd = _text(req["cwd"], "cwd")
-    if not os.path.isabs(cwd):
-        raise _Refusal(f"malformed request: cwd {_show(cwd)} is not an absolute path")
-    env = req["env"]
-    _collection(env, dict, "env")
-    for key, value in env.items():
-        if not key or "=" in key or "\0" in key or not forwarded(key):
-            raise _Refusal(f"malformed request: env name {_show(key)} is not a SLIC3R_ or "
-                           "PRINTABILITY_ variable name (no '=' nor NUL)")
-        _text(key, "env name")
-        _text(value, f"env[{_show(key)}]")
-    files = req["files"]
-    _collection(files, dict, "files")
-    for arg, ident in files.items():
-        if arg not in argv:
-            raise _Refusal(f"malformed request: files names {_show(arg)}, not an argument")
-        if not (isinstance(ident, list) and len(ident) == 4
-                and all(type(n) is int and n >= 0 for n in ident)):
-            raise _Refusal(f"malformed request: files[{_show(arg)}] must be four integers "
-                           "(device, inode, size, time)")
-    ticket = req["ticket"]
-    if not isinstance(ticket, str) or not _TICKET.match(ticket):
-        raise _Refusal(f"malformed request: ticket {_show(ticket)} is not a ticket's name")
-    if argv[:1] != ["postprocess"]:
-        raise _Refusal("this server only runs postprocess")
-    return op
 
 
 # --- the write gate ---------------------------------------------------------------------
@@ -371,7 +263,7 @@ def _sweep_tickets(folder: str) -> None:
     limit = time.time() - _TICKET_AGE
     with contextlib.suppress(OSError), os.scandir(folder) as entries:
         for e in entries:
-            if _TICKET.match(e.name):
+            if TICKET_NAME.match(e.name):
                 with contextlib.suppress(OSError):
                     if e.stat(follow_symlinks=False).st_mtime < limit:
                         os.unlink(e.path)
@@ -417,182 +309,6 @@ def _bind(address: str) -> socket.socket:
     return sock
 
 
-# --- connections ------------------------------------------------------------------------
-
-@dataclass(eq=False)
-class _Job:
-    """A request handed from its connection's thread to the serving thread."""
-
-    op: str
-    req: dict
-    ticket: str = ""
-    done: threading.Event = field(default_factory=threading.Event)
-    reply: dict | None = None
-    left: bool = False  # the client hung up while waiting
-    wrote: bool = False  # the run took the ticket (its files are written)
-    refused: bool = False  # the run's write was refused: the client had taken the ticket
-
-    def finish(self, reply: dict) -> None:
-        if not self.done.is_set():
-            self.reply = reply
-            self.done.set()
-
-
-_STOPPING = {"ok": False, "reason": "the server is stopping"}
-
-
-def _printable(argv: list[str]) -> str:
-    """A command line for the log, on one line whatever its arguments hold."""
-    return " ".join(a if a.isprintable() else repr(a) for a in argv)
-
-
-class _Clients:
-    """The listening socket's thread and one thread per connection: they read and check
-    requests, answer status requests and refusals, and queue the rest (:attr:`jobs`, with
-    the log lines they write, which the serving thread prints: during a run its standard
-    streams are the run's)."""
-
-    def __init__(self, sock: socket.socket, ticket_dir: str, request_timeout: float):
-        self.sock = sock
-        self.ticket_dir = ticket_dir
-        self.request_timeout = request_timeout
-        self.jobs: queue.SimpleQueue = queue.SimpleQueue()
-        self.lock = threading.Lock()
-        self.stopping = False
-        self.active = 0
-        self.last_seen = time.monotonic()
-        self.thread = threading.Thread(target=self._accept_loop, name="printability-accept",
-                                       daemon=True)
-
-    def start(self) -> None:
-        self.thread.start()
-
-    def stop(self) -> None:
-        """Stop taking connections; queued requests are declined by the caller."""
-        with self.lock:
-            self.stopping = True
-        if self.thread.is_alive():
-            self.thread.join(5.0)
-
-    def log(self, msg: str) -> None:
-        self.jobs.put(msg)
-
-    def idle_for(self) -> float | None:
-        """Seconds since the last connection ended, or ``None`` while one is open."""
-        with self.lock:
-            return None if self.active else time.monotonic() - self.last_seen
-
-    def _accept_loop(self) -> None:
-        self.sock.settimeout(0.5)  # to see `stopping`
-        while not self.stopping:
-            try:
-                conn, _ = self.sock.accept()
-            except TimeoutError:
-                continue
-            except OSError as exc:
-                if self.stopping:
-                    return
-                self.log(f"cannot accept a connection: {exc.strerror or exc}")
-                time.sleep(0.1)  # out of file descriptors, say: let some close
-                continue
-            with self.lock:
-                self.last_seen = time.monotonic()
-                busy = self.active >= _MAX_CLIENTS
-                if not busy:
-                    self.active += 1
-            if busy:
-                self._refuse(conn, f"busy: {_MAX_CLIENTS} connections open")
-                conn.close()
-                continue
-            try:
-                threading.Thread(target=self._client, args=(conn,), daemon=True).start()
-            except RuntimeError:  # no thread to be had
-                self._done()
-                self._refuse(conn, "busy: cannot start a thread")
-                conn.close()
-
-    def _done(self) -> None:
-        with self.lock:
-            self.active -= 1
-            self.last_seen = time.monotonic()
-
-    def _client(self, conn: socket.socket) -> None:
-        try:
-            with conn:
-                self._converse(conn)
-        except Exception:  # a bug: keep serving the others
-            self.log("error while serving a client:\n" + traceback.format_exc().rstrip())
-        finally:
-            self._done()
-
-    def _converse(self, conn: socket.socket) -> None:
-        deadline = time.monotonic() + self.request_timeout
-        try:
-            req = read_message(conn, limit=_MAX_REQUEST, deadline=deadline)
-        except MessageError as exc:
-            self._refuse(conn, f"malformed request: {exc}")
-            return
-        except TimeoutError:
-            self._refuse(conn, f"no whole request within {self.request_timeout:g} s")
-            return
-        except OSError:  # the connection broke: nobody to answer
-            return
-        if req is None:  # connected and closed (a probe)
-            return
-        try:
-            op = check_request(req)
-        except _Refusal as exc:
-            self._refuse(conn, str(exc))
-            return
-        if op == "status":
-            self._reply(conn, {"ok": True, "pid": os.getpid(), "version": __version__,
-                               "python": sys.executable})
-            return
-        job = _Job(op, req, os.path.join(self.ticket_dir, req["ticket"]) if op == "run" else "")
-        with self.lock:
-            queued = not self.stopping
-            if queued:
-                self.jobs.put(job)
-        if not queued:
-            self._reply(conn, _STOPPING)
-            return
-        if self._wait(conn, job):
-            self._reply(conn, job.reply)
-
-    def _wait(self, conn: socket.socket, job: _Job) -> bool:
-        """Wait for ``job``, sending a heartbeat a second; false when the client left."""
-        while not job.done.wait(_HEARTBEAT):
-            try:
-                if _hung_up(conn):
-                    job.left = True
-                    return False
-                conn.settimeout(_SEND_TIMEOUT)
-                conn.sendall(b"\0\0\0\0")
-            except OSError:
-                job.left = True
-                return False
-        return True
-
-    def _reply(self, conn: socket.socket, reply: dict | None) -> None:
-        if reply is None:
-            return
-        with contextlib.suppress(OSError):  # the client gave up: nothing to tell it
-            conn.settimeout(_SEND_TIMEOUT)
-            send_message(conn, reply)
-
-    def _refuse(self, conn: socket.socket, reason: str) -> None:
-        self.log(f"refused a request: {reason}")
-        with contextlib.suppress(OSError):
-            conn.settimeout(1.0)
-            send_message(conn, {"ok": False, "reason": reason})
-
-
-def _hung_up(conn: socket.socket) -> bool:
-    """Whether the client closed its end (or sent more than its request: not a client of
-    this protocol). It sends nothing after its request, so anything readable says so."""
-    poller = select.poll()
-    poller.register(conn, select.POLLIN)
-    return bool(poller.poll(0))
 
 
 # --- the server -------------------------------------------------------------------------
@@ -649,11 +365,37 @@ def serve(
     sock = _bind(address)
     folder = os.path.abspath(os.path.dirname(address) or ".")
     _sweep_tickets(folder)
-    clients = _Clients(sock, folder, request_timeout)
-    requests, reason = 0, "stopped"
-    job: _Job | None = None
+    state = _Serving(Clients(sock, folder, request_timeout), stamp, roots, say)
+    with _interrupting_signals(state.terminated):
+        try:
+            _start(state, address, retain_memory=retain_memory, warm=warm)
+            _serve_jobs(state, idle_timeout)
+        except KeyboardInterrupt:
+            state.reason = "terminated" if state.terminated else "interrupted"
+        finally:
+            _shut_down(state, sock, address)
+    say(f"stopped ({state.reason}) after {state.requests} requests")
+    return ServeResult(state.requests, state.reason, time.perf_counter() - t0)
 
-    terminated = []
+
+@dataclass(eq=False)
+class _Serving:
+    """The serving thread's state: what it serves with, and how far it got."""
+
+    clients: Clients
+    stamp: tuple
+    roots: list[Path]
+    say: Callable[[str], None]
+    terminated: list[int] = field(default_factory=list)  # the signals that stop it
+    requests: int = 0
+    reason: str = "stopped"
+    job: Job | None = None  # the job being handled, finished on the way out if still open
+
+
+@contextlib.contextmanager
+def _interrupting_signals(terminated: list[int]) -> Iterator[None]:
+    """SIGTERM and SIGINT raise KeyboardInterrupt in the serving thread (the main thread
+    only), noted in ``terminated``; the previous handlers come back afterwards."""
 
     def _terminate(signum, _frame):
         # the CLI turns KeyboardInterrupt into exit code 130 inside a run: the flag makes the
@@ -665,68 +407,81 @@ def serve(
     if _in_main_thread():
         previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
-        clients.start()
-        say(f"listening on {address} (pid {os.getpid()})")
-        if retain_memory and not retain_freed_memory():
-            say("the C library keeps its own memory policy (not glibc)")
-        if warm:
-            from printability.warmup import warm_up
-
-            res = warm_up()
-            say(f"kernels loaded in {res.seconds:.1f} s")
-        while True:
-            job = None
-            item = _next(clients, idle_timeout)
-            if item is None:
-                reason = f"idle for {idle_timeout:g} s"
-                break
-            if isinstance(item, str):
-                say(item)
-                continue
-            job = item
-            if job.op == "stop":
-                job.finish({"ok": True})
-                reason = "asked to stop"
-                break
-            try:
-                reply, stop = _handle(job, stamp, roots, say)
-            except Exception:  # a bug: say so, decline, keep serving
-                say("error while running a request:\n" + traceback.format_exc().rstrip())
-                reply, stop = {"ok": False, "reason": "the server failed (see its log)"}, None
-            if terminated:
-                stop = "terminated"
-                if not job.wrote:  # done and written: the client takes the run's reply
-                    reply = _STOPPING
-            if reply is not None and "rc" in reply:
-                requests += 1
-                note = "; nothing written: the client had stopped waiting" if job.refused else ""
-                say(f"request {requests}: {_printable(job.req['argv'])} -> exit "
-                    f"{reply['rc']}{note}")
-            job.finish(reply or _STOPPING)
-            if stop:
-                reason = stop
-                break
-    except KeyboardInterrupt:
-        reason = "terminated" if terminated else "interrupted"
+        yield
     finally:
-        clients.stop()
-        sock.close()
-        with contextlib.suppress(OSError):
-            os.unlink(address)
-        if job is not None:
-            job.finish(_STOPPING)
-        for item in _drain(clients.jobs):
-            if isinstance(item, str):
-                say(item)
-            else:
-                item.finish(_STOPPING)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    say(f"stopped ({reason}) after {requests} requests")
-    return ServeResult(requests, reason, time.perf_counter() - t0)
 
 
-def _next(clients: _Clients, idle_timeout: float | None) -> _Job | str | None:
+def _start(state: _Serving, address: str, *, retain_memory: bool, warm: bool) -> None:
+    """Take connections, then set the memory policy and load the kernels (requests arriving
+    meanwhile wait in the queue)."""
+    state.clients.start()
+    say = state.say
+    say(f"listening on {address} (pid {os.getpid()})")
+    if retain_memory and not retain_freed_memory():
+        say("the C library keeps its own memory policy (not glibc)")
+    if warm:
+        from printability.warmup import warm_up
+
+        res = warm_up()
+        say(f"kernels loaded in {res.seconds:.1f} s")
+
+
+def _serve_jobs(state: _Serving, idle_timeout: float | None) -> None:
+    """Run the queued jobs one at a time until idle, asked to stop, or stale."""
+    say = state.say
+    while True:
+        state.job = None
+        item = _next(state.clients, idle_timeout)
+        if item is None:
+            state.reason = f"idle for {idle_timeout:g} s"
+            return
+        if isinstance(item, str):
+            say(item)
+            continue
+        job = state.job = item
+        if job.op == "stop":
+            job.finish({"ok": True})
+            state.reason = "asked to stop"
+            return
+        try:
+            reply, stop = _handle(job, state.stamp, state.roots, say)
+        except Exception:  # a bug: say so, decline, keep serving
+            say("error while running a request:\n" + traceback.format_exc().rstrip())
+            reply, stop = {"ok": False, "reason": "the server failed (see its log)"}, None
+        if state.terminated:
+            stop = "terminated"
+            if not job.wrote:  # done and written: the client takes the run's reply
+                reply = STOPPING
+        if reply is not None and "rc" in reply:
+            state.requests += 1
+            note = "; nothing written: the client had stopped waiting" if job.refused else ""
+            say(f"request {state.requests}: {printable(job.req['argv'])} -> exit "
+                f"{reply['rc']}{note}")
+        job.finish(reply or STOPPING)
+        if stop:
+            state.reason = stop
+            return
+
+
+def _shut_down(state: _Serving, sock: socket.socket, address: str) -> None:
+    """Stop taking connections, remove the socket, and decline what is still queued."""
+    clients = state.clients
+    clients.stop()
+    sock.close()
+    with contextlib.suppress(OSError):
+        os.unlink(address)
+    if state.job is not None:
+        state.job.finish(STOPPING)
+    for item in _drain(clients.jobs):
+        if isinstance(item, str):
+            state.say(item)
+        else:
+            item.finish(STOPPING)
+
+
+def _next(clients: Clients, idle_timeout: float | None) -> Job | str | None:
     """The next queued job or log line; ``None`` once idle for ``idle_timeout`` s."""
     while True:
         wait = None
@@ -755,18 +510,18 @@ def _in_main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _handle(job: _Job, stamp: tuple, roots: list[Path],
+def _handle(job: Job, stamp: tuple, roots: list[Path],
             say: Callable[[str], None]) -> tuple[dict | None, str | None]:
     """Run ``job`` (a checked run request): its reply (``None``: its client left), and why to
     stop afterwards (``None``: keep serving)."""
     req = job.req
     if job.left:
         take_ticket(job.ticket)
-        say(f"declined {_printable(req['argv'])}: the client left before its turn")
+        say(f"declined {printable(req['argv'])}: the client left before its turn")
         return None, None
     reply, stop = _decline(req, job.ticket, stamp, roots)
     if reply is not None:
-        say(f"declined {_printable(req['argv'])}: {reply['reason']}")
+        say(f"declined {printable(req['argv'])}: {reply['reason']}")
         return reply, stop
     with _WriteGate(job.ticket, lambda: job.left).active() as gate:
         rc, out, err = _run_command(req["argv"], req["cwd"], req["env"])

@@ -57,8 +57,6 @@ from simulators.planner import BUSY, PlannerMixin
 
 __all__ = ["Disconnect", "Firmware", "Heater", "Stall", "Stats", "checksum"]
 
-KILLED = "Error:Printer halted. kill() called!"
-
 # Under the simulated clock a wait of years (G4 S1e9) would print a busy line every 2 s;
 # after this many keepalives of one command the clock jumps straight to its end.
 _SIM_KEEPALIVE_CAP = 1000
@@ -167,7 +165,7 @@ class Firmware(LineProtocolMixin, PlannerMixin, CommandsMixin):
         self._power_on(banner=True)
 
     def _kill(self) -> None:
-        self._emit(KILLED if self.fw.name != "klipper" else "!! Shutdown due to M112 command")
+        self._emit(self.fw.kill_message)
         self.halted = True
         self._ring.clear()
         self._line.clear()

@@ -31,7 +31,9 @@ INSTANTANEOUS_CORNER_VELOCITY=``. :func:`printer_cfg` writes that command into t
 file registers an axis itself (a real printer does it in its start G-code or a macro; the
 ignored-word scan follows the axes klippy actually registered, wherever that happened).
 
-This module imports nothing from the project (it is a test and benchmark instrument).
+The config is written by :mod:`simulators.klipper_cfg` and the ignored-word scan is
+:mod:`simulators.klipper_words` (both re-exported here). These modules import nothing else from
+the project (they are a test and benchmark instrument).
 """
 
 from __future__ import annotations
@@ -42,11 +44,13 @@ import re
 import subprocess
 import tempfile
 import time
-from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from simulators.klipper_cfg import START_END_MACROS, cfg_preamble, printer_cfg
+from simulators.klipper_words import IgnoredWord, scan_ignored_words
 
 __all__ = [
     "MOVE_DTYPE",
@@ -86,58 +90,12 @@ MOVE_DTYPE = np.dtype([
 ])
 _RAW_FIELDS = 17    # doubles per move written by the launcher (see _LAUNCHER: record())
 
-#: Empty macros for the start/end macros slicer profiles for Klipper call; pass as
-#: ``printer_cfg(extra=START_END_MACROS)`` when a file's own would otherwise be unknown.
-START_END_MACROS = """
-[gcode_macro START_PRINT]
-gcode:
-  G90
-
-[gcode_macro END_PRINT]
-gcode:
-  M400
-
-[gcode_macro PRINT_START]
-gcode:
-  G90
-
-[gcode_macro PRINT_END]
-gcode:
-  M400
-"""
-
-_PREAMBLE_TAG = "# printability-preamble:"
-_AXIS_TAG = "# printability-axis:"
-
-
 class KlipperError(RuntimeError):
     """Klipper could not run the file (no build, a config it refused, a crash or a timeout)."""
 
 
 class KlipperNotBuiltError(KlipperError):
     """``scripts/build-klipper`` has not been run (or its build is incomplete)."""
-
-
-@dataclass(frozen=True)
-class IgnoredWord:
-    """A G-code word Klipper drops without a message.
-
-    Attributes
-    ----------
-    line : int
-        1-based line number in the file.
-    command : str
-        The command the word was on (``G1``, ``G92``...).
-    word : str
-        The word as Klipper parsed it (letter and value, upper case), e.g. ``C45``.
-    reason : str
-        Why Klipper ignores it.
-    """
-
-    line: int
-    command: str
-    word: str
-    reason: str
 
 
 @dataclass(frozen=True)
@@ -250,283 +208,6 @@ def _require_build() -> Path:
             "pip, gcc and make; scripts/test runs it), or point PRINTABILITY_KLIPPER_BUILD at "
             "an existing build.")
     return build
-
-
-# --------------------------------------------------------------------------- printer.cfg
-
-def _fmt(v: float) -> str:
-    return f"{v:.6g}"
-
-
-def printer_cfg(
-    *,
-    rotary_letter: str | None = "C",
-    bed: tuple[float, float, float, float] = (0.0, 250.0, 0.0, 210.0),
-    z_max: float = 220.0,
-    start_position: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
-    max_velocity: float = 300.0,
-    max_accel: float = 3000.0,
-    square_corner_velocity: float = 5.0,
-    minimum_cruise_ratio: float = 0.5,
-    max_z_velocity: float = 15.0,
-    max_z_accel: float = 300.0,
-    nozzle_diameter: float = 0.4,
-    filament_diameter: float = 1.75,
-    max_extrude_cross_section: float | None = None,
-    max_extrude_only_distance: float = 50.0,
-    rotary_velocity: float = 720.0,
-    rotary_accel: float = 7200.0,
-    rotary_corner_velocity: float = 1.0,
-    rotary_range: tuple[float, float] | None = None,
-    rotary_steps_per_turn: int = 3200,
-    arc_resolution: float | None = 1.0,
-    slicer_sections: bool = True,
-    extra: str = "",
-) -> str:
-    """A Klipper ``printer.cfg`` for a cartesian printer on the Linux-host MCU, for batch mode.
-
-    Parameters
-    ----------
-    rotary_letter : str or None
-        G-code letter of the rotary nozzle axis (a ``[manual_stepper]`` named after it in lower
-        case), or None for none. Not one of ``XYZEFN``.
-    bed : (xmin, xmax, ymin, ymax)
-        Travel limits of X and Y, mm; moves outside are ``Move out of range``.
-    z_max : float
-        Upper Z limit, mm (the lower one is 0).
-    start_position : (x, y, z) or None
-        Where the toolhead is taken to be, homed, when the file starts (mm; the runner sends
-        ``SET_KINEMATIC_POSITION``). None: nothing is homed, the file must home (G28) first or
-        its moves fail with ``Must home axis first``.
-    max_velocity, max_accel : float
-        Toolhead limits, mm/s and mm/s² (``[printer]``).
-    square_corner_velocity : float
-        Speed through a 90° corner, mm/s (Klipper's junction deviation).
-    minimum_cruise_ratio : float
-        Klipper's ``minimum_cruise_ratio`` (its default 0.5; 0 gives plain trapezoids).
-    max_z_velocity, max_z_accel : float
-        Z limits, mm/s and mm/s².
-    nozzle_diameter, filament_diameter : float
-        Extruder geometry, mm (they set Klipper's extrusion limits).
-    max_extrude_cross_section : float or None
-        Largest extrusion cross-section, mm², before ``Move exceeds maximum extrusion`` (None:
-        Klipper's default, 4·nozzle_diameter²).
-    max_extrude_only_distance : float
-        Longest extrude-only move, mm of filament.
-    rotary_velocity, rotary_accel : float
-        The rotary axis's limits, degrees/s and degrees/s² (``LIMIT_VELOCITY``/``LIMIT_ACCEL``
-        and the stepper's own ``velocity``/``accel``).
-    rotary_corner_velocity : float
-        ``INSTANTANEOUS_CORNER_VELOCITY``, degrees/s: a junction between two moves whose
-        degrees-per-mm differ by r is limited to this / r mm/s (Klipper's default 1).
-    rotary_range : (min, max) or None
-        Rotary travel limits, degrees (None: unlimited, a nozzle turning freely).
-    rotary_steps_per_turn : int
-        Microsteps per 360° (3200: a 200-step motor at 16 microsteps, direct drive).
-    arc_resolution : float or None
-        ``[gcode_arcs]`` segment length, mm (None: no G2/G3 support, they are unknown commands).
-    slicer_sections : bool
-        Add ``[exclude_object]`` and ``[display_status]`` (EXCLUDE_OBJECT_*, M73, M117), which
-        slicer profiles for Klipper use.
-    extra : str
-        More config text appended (macros, e.g. :data:`START_END_MACROS`).
-
-    Returns
-    -------
-    str
-        The config. It carries the commands the runner sends before the file as
-        ``# printability-preamble:`` comments, which Klipper ignores.
-    """
-    if rotary_letter is not None:
-        rotary_letter = rotary_letter.upper()
-        if len(rotary_letter) != 1 or not rotary_letter.isalpha() or rotary_letter in "XYZEFN":
-            raise ValueError(f"rotary_letter must be one letter other than XYZEFN, got "
-                             f"{rotary_letter!r}")
-    xmin, xmax, ymin, ymax = bed
-    # Linux MCU pin names: gpio<N> (one use each) and analog0..7 for the thermistors
-    pins = iter(f"gpio{i}" for i in range(1, 64))
-
-    def stepper(name: str, rotation_distance: float, lo: float, hi: float, endstop: float,
-                extra_lines: str = "") -> str:
-        return (f"[stepper_{name}]\nstep_pin: {next(pins)}\ndir_pin: {next(pins)}\n"
-                f"enable_pin: !{next(pins)}\nmicrosteps: 16\n"
-                f"rotation_distance: {_fmt(rotation_distance)}\nendstop_pin: ^{next(pins)}\n"
-                f"position_endstop: {_fmt(endstop)}\nposition_min: {_fmt(lo)}\n"
-                f"position_max: {_fmt(hi)}\nhoming_speed: 50\n{extra_lines}\n")
-
-    out = [
-        "# Klipper batch-mode config written by simulators/klipper_batch.printer_cfg\n",
-        "[mcu]\nserial: /tmp/klipper_host_mcu\n\n",
-        f"[printer]\nkinematics: cartesian\nmax_velocity: {_fmt(max_velocity)}\n"
-        f"max_accel: {_fmt(max_accel)}\nsquare_corner_velocity: {_fmt(square_corner_velocity)}\n"
-        f"minimum_cruise_ratio: {_fmt(minimum_cruise_ratio)}\n"
-        f"max_z_velocity: {_fmt(max_z_velocity)}\nmax_z_accel: {_fmt(max_z_accel)}\n\n",
-        stepper("x", 40, xmin, xmax, xmin),
-        stepper("y", 40, ymin, ymax, ymin),
-        stepper("z", 8, 0, z_max, 0, "homing_speed: 10\n"),
-    ]
-    cross = ("" if max_extrude_cross_section is None
-             else f"max_extrude_cross_section: {_fmt(max_extrude_cross_section)}\n")
-    out.append(
-        f"[extruder]\nstep_pin: {next(pins)}\ndir_pin: {next(pins)}\nenable_pin: !{next(pins)}\n"
-        f"microsteps: 16\nrotation_distance: 33.5\nnozzle_diameter: {_fmt(nozzle_diameter)}\n"
-        f"filament_diameter: {_fmt(filament_diameter)}\n{cross}"
-        f"max_extrude_only_distance: {_fmt(max_extrude_only_distance)}\n"
-        # batch mode has no temperatures: the heater only has to be a valid one
-        f"heater_pin: {next(pins)}\nsensor_type: EPCOS 100K B57560G104F\nsensor_pin: analog0\n"
-        "control: watermark\nmin_temp: 0\nmax_temp: 300\n\n")
-    out.append(
-        f"[heater_bed]\nheater_pin: {next(pins)}\nsensor_type: EPCOS 100K B57560G104F\n"
-        "sensor_pin: analog1\ncontrol: watermark\nmin_temp: 0\nmax_temp: 130\n\n")
-    out.append(f"[fan]\npin: {next(pins)}\n\n")
-    # SET_KINEMATIC_POSITION, for start_position
-    out.append("[force_move]\nenable_force_move: True\n\n")
-    if arc_resolution is not None:
-        out.append(f"[gcode_arcs]\nresolution: {_fmt(arc_resolution)}\n\n")
-    if slicer_sections:
-        out.append("[exclude_object]\n\n[display_status]\n\n")
-    preamble = []
-    if start_position is not None:
-        x, y, z = start_position
-        preamble.append(f"SET_KINEMATIC_POSITION X={_fmt(x)} Y={_fmt(y)} Z={_fmt(z)}")
-    if rotary_letter is not None:
-        name = rotary_letter.lower()
-        limits = ("" if rotary_range is None else
-                  f"position_min: {_fmt(rotary_range[0])}\nposition_max: {_fmt(rotary_range[1])}\n")
-        out.append(
-            f"[manual_stepper {name}]\nstep_pin: {next(pins)}\ndir_pin: {next(pins)}\n"
-            f"enable_pin: !{next(pins)}\nmicrosteps: 16\n"
-            # rotation_distance in degrees: positions and speeds of the axis are in degrees
-            f"rotation_distance: 360\nfull_steps_per_rotation: {rotary_steps_per_turn // 16}\n"
-            f"velocity: {_fmt(rotary_velocity)}\naccel: {_fmt(rotary_accel)}\n{limits}\n")
-        register = (f"MANUAL_STEPPER STEPPER={name} GCODE_AXIS={rotary_letter} "
-                    f"LIMIT_VELOCITY={_fmt(rotary_velocity)} LIMIT_ACCEL={_fmt(rotary_accel)} "
-                    f"INSTANTANEOUS_CORNER_VELOCITY={_fmt(rotary_corner_velocity)}")
-        out.append(f"{_AXIS_TAG} {register}\n")
-    out.extend(f"{_PREAMBLE_TAG} {cmd}\n" for cmd in preamble)
-    if extra:
-        out.append("\n" + extra.strip("\n") + "\n")
-    return "".join(out)
-
-
-def _cfg_preamble(cfg: str) -> tuple[list[str], list[str]]:
-    """(axis registrations, other preamble commands) carried in ``cfg``'s comments."""
-    axes, other = [], []
-    for line in cfg.splitlines():
-        s = line.strip()
-        if s.startswith(_AXIS_TAG):
-            axes.append(s[len(_AXIS_TAG):].strip())
-        elif s.startswith(_PREAMBLE_TAG):
-            other.append(s[len(_PREAMBLE_TAG):].strip())
-    return axes, other
-
-
-# --------------------------------------------------------------------------- ignored words
-
-# klippy's own tokeniser (gcode.py GCodeDispatch.args_r): the upper-cased line, up to ';',
-# split into a command and letter/value pairs
-_ARGS_R = re.compile(r"([A-Z_]+|[A-Z*])")
-_AXIS_REG_R = re.compile(r"^\s*(?:N\d+\s+)?MANUAL_STEPPER\b(.*)$", re.IGNORECASE)
-_GCODE_AXIS_R = re.compile(r"\bGCODE_AXIS=(\S*)", re.IGNORECASE)
-_STEPPER_R = re.compile(r"\bSTEPPER=(\S+)", re.IGNORECASE)
-# a cheap filter: only lines that may hold a motion command are tokenised
-_MOTION_R = re.compile(rb"^\s*(?:N\d+\s*)?G\s*(?:[0-4]|28|92)(?![0-9.])", re.IGNORECASE)
-
-
-def _klippy_parse(line: str) -> tuple[str, list[tuple[str, str]]]:
-    """Command and (letter, value) words, as klippy's GCodeDispatch splits a line."""
-    cpos = line.find(";")
-    if cpos >= 0:
-        line = line[:cpos]
-    parts = _ARGS_R.split(line.strip().upper())
-    if "".join(parts[:2]) == "N":
-        cmd = "".join(parts[3:5]).strip()
-        words = [(parts[i], parts[i + 1].strip()) for i in range(5, len(parts) - 1, 2)]
-    else:
-        cmd = "".join(parts[:3]).strip()
-        words = [(parts[i], parts[i + 1].strip()) for i in range(3, len(parts) - 1, 2)]
-    return cmd, words
-
-
-def scan_ignored_words(lines: Iterable[str | bytes], *, axes: str = "XYZE",
-                       axis_changes: Sequence[tuple[int, str]] | None = None,
-                       ) -> list[IgnoredWord]:
-    """Words of motion commands that Klipper drops without a message.
-
-    Klipper reads from G0/G1 only X, Y, Z, E, F and the letters registered as extra axes; from
-    G2/G3 (``[gcode_arcs]``) X, Y, Z, I, J (K in the G18/G19 planes), E, F (an R is an error it
-    reports); from G92 only X, Y, Z, E (never an extra axis); from G28 only X, Y, Z (``G28 C``
-    homes all axes); from G4 only P (Marlin's ``G4 S30``, seconds, is a dwell of 0). Anything
-    else on those commands is silently ignored, which is why a file meant for a rotary axis
-    that the printer has not registered still "runs".
-
-    Parameters
-    ----------
-    lines : iterable of str or bytes
-        The file's lines, in order (line 1 first).
-    axes : str
-        Letters registered when the file starts (``XYZE`` plus extra axes).
-    axis_changes : sequence of (int, str) or None
-        The registered letters as klippy changed them: ``(line, letters)`` means ``letters``
-        from the line after ``line`` on (:func:`run_klipper` passes what klippy did, macros
-        included). None: follow the file's own ``MANUAL_STEPPER ... GCODE_AXIS=`` lines.
-
-    Returns
-    -------
-    list of IgnoredWord
-    """
-    registered = {a.upper() for a in axes}
-    by_stepper: dict[str, str] = {}
-
-    def register(rest: str) -> None:
-        m, s = _GCODE_AXIS_R.search(rest), _STEPPER_R.search(rest)
-        if m is None or s is None:
-            return
-        letter, stepper = m.group(1).upper(), s.group(1).lower()
-        if letter:
-            by_stepper[stepper] = letter
-            registered.add(letter)
-        elif stepper in by_stepper:      # GCODE_AXIS= (empty) unregisters
-            registered.discard(by_stepper.pop(stepper))
-
-    changes = sorted(axis_changes or ())
-    k = 0
-    plane = "G17"
-    found: list[IgnoredWord] = []
-    for n, raw in enumerate(lines, 1):
-        while k < len(changes) and changes[k][0] < n:
-            registered = set(changes[k][1].upper())
-            k += 1
-        b = raw if isinstance(raw, bytes) else raw.encode("utf-8", "replace")
-        if not _MOTION_R.match(b):
-            if axis_changes is None and b"MANUAL_STEPPER" in b.upper():
-                m = _AXIS_REG_R.match(b.decode("utf-8", "replace"))
-                if m is not None:
-                    register(m.group(1))
-            elif b.lstrip()[:2].upper() == b"G1" and b.lstrip()[2:3] in (b"7", b"8", b"9"):
-                plane = b.lstrip()[:3].decode().upper()
-            continue
-        cmd, words = _klippy_parse(b.decode("utf-8", "replace"))
-        if cmd in ("G0", "G1"):
-            allowed, why = registered | {"F"}, "not a registered axis (G0/G1 reads X Y Z E F "
-            why += "and registered extra axes)"
-        elif cmd in ("G2", "G3"):
-            allowed = {"X", "Y", "Z", "I", "J", "E", "F", "R"}
-            if plane != "G17":
-                allowed.add("K")
-            why = f"G2/G3 reads only X Y Z I J{' K' if plane != 'G17' else ''} E F"
-        elif cmd == "G92":
-            allowed, why = {"X", "Y", "Z", "E"}, "G92 sets only X Y Z E"
-        elif cmd == "G28":
-            allowed, why = {"X", "Y", "Z"}, "G28 homes only X Y Z"
-        elif cmd == "G4":
-            allowed, why = {"P"}, "G4 reads only P (milliseconds)"
-        else:
-            continue
-        for letter, value in words:
-            if letter not in allowed and letter != "*":
-                found.append(IgnoredWord(n, cmd, letter + value, why))
-    return found
 
 
 # --------------------------------------------------------------------------- the run
@@ -715,7 +396,7 @@ def run_klipper(
     """
     build = _require_build()
     data = _as_bytes(gcode)
-    registrations, preamble = _cfg_preamble(cfg)
+    registrations, preamble = cfg_preamble(cfg)
     file_registers = re.search(rb"(?im)^\s*(?:N\d+\s+)?MANUAL_STEPPER\b[^;\n]*GCODE_AXIS=",
                                data) is not None
     if register_axes is None:

@@ -99,7 +99,7 @@ class LineProtocolMixin:
     def _take(self, data: bytes) -> None:
         """Bytes enter the receive ring; Marlin's emergency parser sees them on the way."""
         self._ring += data
-        if self.fw.name == "klipper":
+        if not self.fw.emergency_parser:
             return
         start = 0
         while True:

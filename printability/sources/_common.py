@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ from printability.options import UNITS
 __all__ = [
     "CLI_OPTIONS",
     "MAX_COORDINATE",
+    "SVG_NUMBER",
     "UNIT_MM",
     "apply_fit",
     "check_coordinates",
@@ -46,10 +48,20 @@ __all__ = [
     "require_file",
     "unit_scale",
     "winding_numbers",
+    "xml_local_name",
 ]
 
 #: Millimetres per unit, for every unit of :data:`printability.options.UNITS`.
 UNIT_MM: dict[str, float] = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "px": 25.4 / 96.0}
+
+
+#: A number as SVG writes it in path data and point lists.
+SVG_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+
+
+def xml_local_name(tag: Any) -> str:
+    """An XML element's tag without its ``{namespace}`` (``""`` for comments and the like)."""
+    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
 
 
 def unit_scale(units: str | None, default: str = "mm") -> float:

@@ -151,6 +151,36 @@ def _join(pieces: list[np.ndarray], tol: float) -> tuple[list[np.ndarray], int]:
     return rings, len(pieces) - n_joined
 
 
+def _drawing_scale(p: Path, doc: Any, units: str | None,
+                   warnings: list[str]) -> tuple[float, int]:
+    """mm per drawing unit (``units`` when given, else the drawing's ``$INSUNITS``, else 1
+    with a warning), and the ``$INSUNITS`` code."""
+    from ezdxf import units as ezunits
+
+    code = int(doc.header.get("$INSUNITS", 0) or 0)
+    if units is not None:
+        k = unit_scale(units)
+        if code:
+            try:
+                header_k = ezunits.conversion_factor(code, ezunits.MM)
+            except (KeyError, IndexError, ValueError):
+                header_k = None
+            if header_k is not None and abs(header_k - k) > 1e-9 * k:
+                warnings.append(f"units={units!r} overrides the drawing's $INSUNITS "
+                                f"{code} ({INSUNITS_NAMES.get(code, '?')})")
+    elif code == 0:
+        k = 1.0
+        warnings.append("the drawing is unitless ($INSUNITS 0 or absent): read as mm; pass "
+                        "units= to say otherwise")
+    else:
+        try:
+            k = float(ezunits.conversion_factor(code, ezunits.MM))
+        except (KeyError, IndexError, ValueError):
+            raise FileFormatError(p, f"unknown $INSUNITS code {code}; expected one of "
+                                  f"{sorted(INSUNITS_NAMES)}", element="$INSUNITS") from None
+    return k, code
+
+
 def load_dxf_layers(
     path: str | Path,
     *,
@@ -186,7 +216,6 @@ def load_dxf_layers(
         Not a DXF file, or no closed outline.
     """
     ezdxf = lazy_import("ezdxf", "dxf", "DXF files")
-    from ezdxf import units as ezunits
 
     p = require_file(path)
     fit = check_positive("fit", fit)
@@ -203,27 +232,7 @@ def load_dxf_layers(
     except OSError as exc:
         raise FileFormatError(p, f"expected a DXF drawing; {exc}") from None
     warnings: list[str] = []
-    code = int(doc.header.get("$INSUNITS", 0) or 0)
-    if units is not None:
-        k = unit_scale(units)
-        if code:
-            try:
-                header_k = ezunits.conversion_factor(code, ezunits.MM)
-            except (KeyError, IndexError, ValueError):
-                header_k = None
-            if header_k is not None and abs(header_k - k) > 1e-9 * k:
-                warnings.append(f"units={units!r} overrides the drawing's $INSUNITS "
-                                f"{code} ({INSUNITS_NAMES.get(code, '?')})")
-    elif code == 0:
-        k = 1.0
-        warnings.append("the drawing is unitless ($INSUNITS 0 or absent): read as mm; pass "
-                        "units= to say otherwise")
-    else:
-        try:
-            k = float(ezunits.conversion_factor(code, ezunits.MM))
-        except (KeyError, IndexError, ValueError):
-            raise FileFormatError(p, f"unknown $INSUNITS code {code}; expected one of "
-                                  f"{sorted(INSUNITS_NAMES)}", element="$INSUNITS") from None
+    k, code = _drawing_scale(p, doc, units, warnings)
     tol = settings.chord_tolerance / k  # in drawing units
     rings: list[np.ndarray] = []
     pieces: list[np.ndarray] = []

@@ -41,27 +41,24 @@ Memory
 from __future__ import annotations
 
 import math
-import struct
-import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import shapely
 
-from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
+from printability.errors import FileFormatError, InputError
 from printability.geometry import as_region
 from printability.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
-    check_coordinates,
     check_memory,
     check_positive,
     fill_segments,
     nest_even_odd,
     require_file,
-    unit_scale,
 )
+from printability.sources.mesh_file import BYTES_PER_TRIANGLE, mesh_units, read_mesh
 
 __all__ = [
     "DEFAULT_LAYER_HEIGHT",
@@ -75,98 +72,12 @@ __all__ = [
 DEFAULT_LAYER_HEIGHT = 0.2
 """Layer height used when none is given, mm (a common FDM default)."""
 MESH_EXTENSIONS = {".stl": "stl", ".3mf": "3mf", ".obj": "obj"}
-# Peak bytes per triangle while trimesh loads and processes a mesh (float64 vertices,
-# int64 faces, normals, edge tables, merge and adjacency caches).
-_BYTES_PER_TRIANGLE = 1200
 # Bytes per section segment: 2 float64 points, a shapely LineString, ring assembly.
 _BYTES_PER_SEGMENT = 400
 _INCH_HINT_MM = 10.0
-_3MF_UNITS_MM = {"micron": 1e-3, "millimeter": 1.0, "centimeter": 10.0, "inch": 25.4,
-                 "foot": 304.8, "meter": 1000.0}
 # Planes cut together: at most this many, and at most _SEGMENTS_PER_BATCH segments.
 _PLANES_PER_BATCH = 32
 _SEGMENTS_PER_BATCH = 1_000_000
-
-
-# ---------------------------------------------------------------- checks before loading
-
-
-def _stl_triangles(p: Path, size: int) -> int:
-    """Triangle count of an STL file from its header and size, or FileFormatError."""
-    with p.open("rb") as fh:
-        head = fh.read(84)
-    if head[:5].lower() == b"solid" and size != 84 + 50 * _declared(head):
-        # ASCII STL: check that it is text; ~250 bytes per facet (7 lines).
-        with p.open("rb") as fh:
-            sample = fh.read(4096)
-        if b"\0" in sample or not _is_text(sample):
-            raise FileFormatError(p, "starts like ASCII STL ('solid') but holds binary data "
-                                  "whose size does not match a binary STL either")
-        return max(1, size // 120)
-    if size < 84:
-        raise FileFormatError(p, f"too short for a binary STL: {size} bytes, fewer than the "
-                              "84-byte header; and not ASCII STL (no 'solid')")
-    n = _declared(head)
-    need = 84 + 50 * n
-    if size < need:
-        raise FileFormatError(
-            p, f"truncated binary STL: the header announces {n:,} triangles ({need:,} bytes) "
-            f"but the file has {size:,} bytes ({(size - 84) // 50:,} whole triangles)",
-            element="header")
-    if n == 0:
-        raise FileFormatError(p, "the binary STL header announces 0 triangles; expected a "
-                              "mesh", element="header")
-    if size > need + 4096:
-        raise FileFormatError(
-            p, f"not an STL file: as binary STL the header announces {n:,} triangles "
-            f"({need:,} bytes) but the file has {size:,} bytes; as ASCII STL it should "
-            "start with 'solid'", element="header")
-    return n
-
-
-def _declared(head: bytes) -> int:
-    return struct.unpack("<I", head[80:84])[0] if len(head) >= 84 else -1
-
-
-def _is_text(sample: bytes) -> bool:
-    try:
-        sample.decode("ascii")
-    except UnicodeDecodeError:
-        return False
-    return True
-
-
-def _check_3mf(p: Path, limit: int) -> int:
-    """Refuse zip bombs and XML entity tricks in a 3MF package; estimate triangles."""
-    try:
-        with zipfile.ZipFile(p) as zf:
-            infos = zf.infolist()
-            total = sum(i.file_size for i in infos)
-            check_memory(p, total * 12, limit, "unpacking and parsing this 3MF package")
-            models = [i for i in infos if i.filename.lower().endswith(".model")]
-            if not models:
-                raise FileFormatError(p, "a 3MF package must hold a 3D/3dmodel.model part; "
-                                      "found none")
-            for i in models:
-                with zf.open(i) as fh:
-                    head = fh.read(65536)
-                if b"<!ENTITY" in head or b"<!DOCTYPE" in head:
-                    raise FileFormatError(p, "refused: the model part declares a DTD or XML "
-                                          "entities, which 3MF does not use and which can "
-                                          "expand without bound", element=i.filename)
-    except zipfile.BadZipFile:
-        raise FileFormatError(p, "expected a 3MF package (a zip archive); the file is not "
-                              "a zip archive") from None
-    # A <triangle v1=.. v2=.. v3=../> is ~40 bytes of XML.
-    return max(1, sum(i.file_size for i in models) // 40)
-
-
-def _estimate_triangles(p: Path, kind: str, size: int, limit: int) -> int:
-    if kind == "stl":
-        return _stl_triangles(p, size)
-    if kind == "3mf":
-        return _check_3mf(p, limit)
-    return max(1, size // 30)  # OBJ: "f a b c" lines plus "v x y z" lines
 
 
 # ---------------------------------------------------------------- loading
@@ -206,64 +117,44 @@ def load_mesh(
     ResourceError
         The estimated memory exceeds ``settings.max_memory``.
     """
-    import trimesh
-
     p = require_file(path)
     kind = file_type or MESH_EXTENSIONS.get(p.suffix.lower())
     if kind not in MESH_EXTENSIONS.values():
         raise InputError(f"{p}: not a mesh file; expected one of "
                          f"{', '.join(MESH_EXTENSIONS)} (or file_type= stl, 3mf, obj)")
     fit = check_positive("fit", fit)
-    try:
-        size = p.stat().st_size
-    except OSError as exc:
-        raise PrintabilityOSError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    if size == 0:
-        raise FileFormatError(p, "the file is empty; expected a mesh")
-    n_est = _estimate_triangles(p, kind, size, settings.max_memory)
-    check_memory(p, n_est * _BYTES_PER_TRIANGLE, settings.max_memory,
-                 f"loading this mesh (about {n_est:,} triangles)")
-    if kind == "3mf":
-        try:
-            import lxml  # noqa: F401  (trimesh's 3MF reader needs it)
-        except ImportError:
-            raise InputError("reading 3MF files needs the package 'lxml'; install it with "
-                             "pip install lxml") from None
+    mesh = read_mesh(p, kind, max_memory=settings.max_memory)
     warnings: list[str] = []
-    try:
-        mesh = trimesh.load(str(p), file_type=kind, force="mesh", process=False)
-    except MemoryError:
-        raise
-    except Exception as exc:  # trimesh's loaders raise many unrelated types on bad input
-        raise FileFormatError(p, f"cannot read as {kind.upper()} ({type(exc).__name__}: "
-                              f"{exc})") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise FileFormatError(p, f"no triangles found; expected a {kind.upper()} mesh")
-    if not np.isfinite(mesh.vertices).all():
-        raise FileFormatError(p, "the mesh has non-finite (NaN or infinite) vertex coordinates")
-    # before any repair: a vertex at 1.8e20 (a flipped exponent bit) made trimesh's rounding
-    # warn with its source path, then "no volume inside a 20 × 1.845e+20 × 20 mm box"
-    check_coordinates(p, mesh.vertices)
-
-    # Units.
-    file_units = None
-    if kind == "3mf":
-        file_units = str(mesh.units or mesh.metadata.get("units") or "millimeter").lower()
-    if units is not None:
-        k = unit_scale(units)
-        if file_units and abs(_3MF_UNITS_MM.get(file_units, 1.0) - k) > 1e-12:
-            warnings.append(f"units={units!r} overrides the file's unit {excerpt(file_units)}")
-    elif file_units:
-        if file_units not in _3MF_UNITS_MM:
-            raise FileFormatError(p, f"unknown 3MF unit {excerpt(file_units)}; expected one of "
-                                  f"{', '.join(_3MF_UNITS_MM)}", element="model@unit")
-        k = _3MF_UNITS_MM[file_units]
-    else:
-        k = 1.0
-    check_coordinates(p, mesh.vertices * k)  # in mm: a unit's scale may take them out of range
+    k, file_units = mesh_units(p, mesh, kind, units, warnings)
     n_read = len(mesh.faces)
+    repairs = _repair(p, mesh, k, repair=repair, warnings=warnings)
+    if k != 1.0:
+        mesh.apply_scale(k)
+    f = 1.0
+    if fit is not None:
+        f = fit / float(mesh.extents.max())
+        mesh.apply_scale(f)
+    if units is None and file_units is None and fit is None:
+        _hint_units(mesh, kind, warnings)
+    meta = {
+        "format": kind,
+        "units": file_units or (units or "mm"),
+        "scale": k * f,
+        "triangles": len(mesh.faces),
+        "triangles_read": n_read,
+        "volume": float(mesh.volume),
+        "extents": tuple(float(v) for v in mesh.extents),
+        "repairs": repairs,
+        "warnings": warnings,
+    }
+    return mesh, meta
 
-    # Repair.
+
+def _repair(p: Path, mesh: Any, k: float, *, repair: bool, warnings: list[str]) -> list[str]:
+    """Merge vertices, drop degenerate and duplicate triangles, fill holes (``repair``), fix
+    the winding; what was done. ``k`` is the file's scale to mm (for the messages)."""
+    import trimesh
+
     repairs = []
     mesh.merge_vertices()
     keep = mesh.nondegenerate_faces()
@@ -308,35 +199,22 @@ def load_mesh(
     if not (vol * k**3 > 1e-9 * float(np.prod(extent))):
         raise FileFormatError(p, f"the mesh encloses no volume ({vol * k**3:.3g} mm³ inside a "
                               f"{extent[0]:.4g} × {extent[1]:.4g} × {extent[2]:.4g} mm box)")
-    if k != 1.0:
-        mesh.apply_scale(k)
-    f = 1.0
-    if fit is not None:
-        f = fit / float(mesh.extents.max())
-        mesh.apply_scale(f)
-    if units is None and file_units is None and fit is None:
-        longest = float(mesh.extents.max())
-        if longest < _INCH_HINT_MM:
-            dims = " × ".join(f"{v:.4g}" for v in mesh.extents)
-            as_in = " × ".join(f"{v * 25.4:.4g}" for v in mesh.extents)
-            hint = (f"the part measures only {dims} mm read as mm; {kind.upper()} has no "
-                    f"units: if it was drawn in inches ({as_in} mm) pass units='in'")
-            if longest < 1.0:
-                as_m = " × ".join(f"{v * 1000:.4g}" for v in mesh.extents)
-                hint += f", in metres ({as_m} mm) units='m'"
-            warnings.append(hint)
-    meta = {
-        "format": kind,
-        "units": file_units or (units or "mm"),
-        "scale": k * f,
-        "triangles": len(mesh.faces),
-        "triangles_read": n_read,
-        "volume": float(mesh.volume),
-        "extents": tuple(float(v) for v in mesh.extents),
-        "repairs": repairs,
-        "warnings": warnings,
-    }
-    return mesh, meta
+    return repairs
+
+
+def _hint_units(mesh: Any, kind: str, warnings: list[str]) -> None:
+    """A part under 10 mm read from a file without units was probably drawn in inches (or
+    metres): say so."""
+    longest = float(mesh.extents.max())
+    if longest < _INCH_HINT_MM:
+        dims = " × ".join(f"{v:.4g}" for v in mesh.extents)
+        as_in = " × ".join(f"{v * 25.4:.4g}" for v in mesh.extents)
+        hint = (f"the part measures only {dims} mm read as mm; {kind.upper()} has no "
+                f"units: if it was drawn in inches ({as_in} mm) pass units='in'")
+        if longest < 1.0:
+            as_m = " × ".join(f"{v * 1000:.4g}" for v in mesh.extents)
+            hint += f", in metres ({as_m} mm) units='m'"
+        warnings.append(hint)
 
 
 # ---------------------------------------------------------------- slicing
@@ -574,7 +452,7 @@ def load_mesh_layers(
     crossings = (np.searchsorted(mids, fz[1], side="right")
                  - np.searchsorted(mids, fz[0], side="left"))
     n_seg = int(crossings.sum())
-    check_memory(p, n_seg * _BYTES_PER_SEGMENT + len(mesh.faces) * _BYTES_PER_TRIANGLE,
+    check_memory(p, n_seg * _BYTES_PER_SEGMENT + len(mesh.faces) * BYTES_PER_TRIANGLE,
                  settings.max_memory,
                  f"slicing {len(mids):,} layers ({n_seg:,} section segments)")
     planes = _nudge(mids, np.unique(mesh.vertices[:, 2]), float(mesh.extents.max()))

@@ -77,20 +77,27 @@ import shapely.affinity
 from shapely.geometry import MultiPolygon
 
 from printability.errors import FileFormatError, ResourceError, excerpt
-from printability.geometry import as_region, polygons_of
-from printability.layers import Layer, LayerStack
+from printability.geometry import polygons_of
+from printability.layers import LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
     apply_fit,
     check_positive,
     fill_rings,
     lazy_import,
-    nest_even_odd,
     planar_stack,
     read_bytes,
     require_file,
     unit_scale,
+    xml_local_name,
 )
+from printability.sources.svg_expansion import (
+    MAX_DEPTH,
+    MAX_ELEMENTS,
+    MAX_SOURCE_POINTS,
+    check_expansion,
+)
+from printability.sources.svg_slic3r import is_slic3r_svg, slic3r_stack
 
 __all__ = ["BACKGROUND_COVERAGE", "MAX_DEPTH", "MAX_ELEMENTS", "MAX_SOURCE_POINTS", "MAX_VERTICES",
            "check_expansion", "is_slic3r_svg", "load_svg_layers", "load_svg_region"]
@@ -98,33 +105,15 @@ __all__ = ["BACKGROUND_COVERAGE", "MAX_DEPTH", "MAX_ELEMENTS", "MAX_SOURCE_POINT
 BACKGROUND_COVERAGE = 0.995
 """Fraction of the canvas an element must cover to count as a page background."""
 
-MAX_ELEMENTS = 10_000
-"""Most elements a drawing may expand to, ``<use>`` copies included (reading costs about
-2 ms per element: 10 000 take some 20 s)."""
-
-MAX_SOURCE_POINTS = 250_000
-"""Most points (pairs of numbers in ``d`` and ``points``; four per basic shape) the drawn
-document may hold, ``<use>`` copies included: svgelements reads path data at some 20 µs a
-number, and every point is then transformed and flattened (about 20 s for this many)."""
-
 MAX_VERTICES = 1_000_000
 """Most points the outlines may have once curves are flattened (counted as they are)."""
 
-MAX_DEPTH = 200
-"""Deepest nesting of elements (``<g>`` in ``<g>``..., ``<use>`` included) a drawing may have."""
-
-SLIC3R_NS = "http://slic3r.org/namespaces/slic3r"
 _SVG_NS = "http://www.w3.org/2000/svg"
 # svgelements keeps a Python object per path segment and point: budget generously.
 _BYTES_PER_INPUT_BYTE = 120.0
 _PHYSICAL_MM = {"mm": 1.0, "cm": 10.0, "in": 25.4, "pt": 25.4 / 72, "pc": 25.4 / 6,
                 "q": 0.25}
 _LENGTH = re.compile(r"^\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*([a-zA-Z%]*)\s*$")
-_NUM = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
-
-
-def _local(tag: Any) -> str:
-    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
 
 
 def _parse_xml(path: Path, raw: bytes) -> Any:
@@ -152,259 +141,7 @@ def _parse_xml(path: Path, raw: bytes) -> Any:
                               line=line) from None
 
 
-def is_slic3r_svg(root: Any) -> bool:
-    """True for a Slic3r multi-layer slice SVG (``<g slic3r:z=...>`` layers)."""
-    z_attr = f"{{{SLIC3R_NS}}}z"
-    return any(z_attr in g.attrib for g in root.iter() if _local(g.tag) == "g")
-
-
-# ---------------------------------------------------------------- Slic3r slices
-
-
-def _points_attr(path: Path, text: str, where: str) -> np.ndarray:
-    nums = _NUM.findall(text or "")
-    if len(nums) % 2 or len(nums) < 6:
-        raise FileFormatError(path, f"expected at least 3 'x,y' points; found {len(nums)} "
-                              "numbers", element=where)
-    return np.array(nums, dtype=float).reshape(-1, 2)
-
-
-def _path_rings(path: Path, d: str, where: str) -> list[np.ndarray]:
-    """Rings of a polygonal path ``d`` (M/L/Z, absolute, as Slic3r writes it)."""
-    if re.search(r"[^MmLlZz0-9eE+\-.,\s]", d):
-        se = lazy_import("svgelements", "svg", "SVG paths with curves")
-        rings = []
-        for sp in se.Path(d).as_subpaths():
-            pts = [(s.end.x, s.end.y) for s in sp if s.end is not None]
-            if len(pts) >= 3:
-                rings.append(np.array(pts, dtype=float))
-        return rings
-    if re.search(r"[ml]", d):
-        raise FileFormatError(path, "relative path commands (m, l) are not expected in a "
-                              "Slic3r slice SVG", element=where)
-    rings = []
-    for chunk in re.split(r"[Mm]", d):
-        nums = _NUM.findall(chunk)
-        if not nums:
-            continue
-        if len(nums) % 2:
-            raise FileFormatError(path, "expected pairs of coordinates in the path data",
-                                  element=where)
-        a = np.array(nums, dtype=float).reshape(-1, 2)
-        if len(a) >= 3:
-            rings.append(a)
-    return rings
-
-
-def _slic3r_stack(path: Path, root: Any, *, units: str | None, fit: float | None,
-                  settings: Settings) -> LayerStack:
-    z_attr = f"{{{SLIC3R_NS}}}z"
-    type_attr = f"{{{SLIC3R_NS}}}type"
-    k = unit_scale(units)
-    zs: list[float] = []
-    regions: list[Any] = []
-    writers: set[str] = set()
-    skipped_groups = 0
-    support = 0
-    for gi, g in enumerate(e for e in root.iter() if _local(e.tag) == "g"):
-        gid = g.get("id") or f"g[{gi}]"
-        where = f"<g id={excerpt(gid, 40)}>"
-        if z_attr not in g.attrib:
-            skipped_groups += 1
-            continue
-        try:
-            z = float(g.get(z_attr))
-        except ValueError:
-            raise FileFormatError(path, f"expected a number in slic3r:z; found "
-                                  f"{excerpt(g.get(z_attr))}", element=where) from None
-        if not math.isfinite(z):
-            raise FileFormatError(path, "slic3r:z is not finite", element=where)
-        rings: list[np.ndarray] = []
-        for el in g:
-            tag = _local(el.tag)
-            kind = el.get(type_attr, "")
-            if kind == "support" or tag in ("line", "circle"):
-                support += 1
-                continue
-            ewhere = f"{where} <{tag}>"
-            if tag == "polygon":
-                writers.add("perl")
-                rings.append(_points_attr(path, el.get("points", ""), ewhere))
-            elif tag == "path":
-                writers.add("c++")
-                rings.extend(_path_rings(path, el.get("d", ""), ewhere))
-        polys = nest_even_odd([r * k for r in rings], min_area=settings.area_tolerance)
-        if not polys:
-            continue
-        zs.append(z)
-        regions.append(MultiPolygon(polys))
-    if not zs:
-        raise FileFormatError(path, "a Slic3r slice SVG with no layer holding a closed "
-                              "outline; expected <g slic3r:z=...> groups with <polygon> or "
-                              "<path> outlines")
-    # Layers of several objects at one height are one layer.
-    order = np.argsort(zs, kind="stable")
-    merged: list[tuple[float, Any]] = []
-    for i in order:
-        if merged and abs(zs[i] - merged[-1][0]) < 1e-9:
-            merged[-1] = (merged[-1][0], shapely.union(merged[-1][1], regions[i]))
-        else:
-            merged.append((zs[i], regions[i]))
-    warnings: list[str] = []
-    mids = "perl" in writers and "c++" not in writers
-    zvals = [z * k for z, _ in merged]
-    tops: list[float] = []
-    if mids:
-        for i, z in enumerate(zvals):
-            tops.append(2 * z if i == 0 else 2 * z - tops[-1])
-        if any(b <= a for a, b in zip([0.0, *tops[:-1]], tops, strict=True)):
-            warnings.append("slic3r:z read as mid-heights gave non-increasing layer tops; "
-                            "layer tops taken half a layer above each slicing plane instead")
-            gaps = np.diff([0.0, *zvals])
-            tops = [z + g / 2 for z, g in zip(zvals, gaps, strict=True)]
-    else:
-        tops = zvals
-    heights = np.diff([0.0, *tops]).tolist()
-    all_geom = MultiPolygon([p for _, r in merged for p in r.geoms])
-    f = 1.0
-    if fit is not None:
-        _, f = apply_fit(all_geom, fit)
-    layers = []
-    for i, ((_, reg), top, h) in enumerate(zip(merged, tops, heights, strict=True)):
-        if f != 1.0:
-            reg = shapely.affinity.scale(reg, f, f, origin=(0, 0))
-        region = as_region(reg, name=f"{path}, layer {i} (z={top:g})")
-        layers.append(Layer(z=float(top), height=float(h), region=region, index=i))
-    meta = {
-        "format": "slic3r-svg",
-        "writer": "Slic3r <= 1.2 (polygons, slic3r:z = slicing plane)" if mids
-        else "Slic3r C++ SVGExport (paths, slic3r:z = layer top)",
-        "skipped_groups": skipped_groups,
-        "support_elements": support,
-        "scale": k * f,
-        "warnings": warnings,
-    }
-    return LayerStack(tuple(layers), source=str(path), meta=meta)
-
-
 # ---------------------------------------------------------------- ordinary drawings
-
-_XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
-# Elements whose content is drawn only where a <use> (or a reference) places it.
-_NOT_DRAWN = frozenset({"defs", "symbol", "clipPath", "mask", "pattern", "marker",
-                        "linearGradient", "radialGradient", "filter", "style", "script",
-                        "title", "desc", "metadata"})
-# Points of a basic shape before curves are flattened (curves are counted as flattened).
-_SHAPE_POINTS = {"rect": 4, "circle": 4, "ellipse": 4, "line": 2}
-
-
-def _name(el: Any) -> str:
-    """``<use href="#a11">``, ``<path id="outline">`` or ``<rect>``: an element for messages."""
-    tag = _local(el.tag)
-    for key in ("id", _XLINK_HREF, "href"):
-        value = el.get(key)
-        if value is not None:
-            attr = "id" if key == "id" else "href"
-            return f"<{tag} {attr}={excerpt(value, 40)}>"
-    return f"<{tag}>"
-
-
-def _own_points(el: Any) -> int:
-    tag = _local(el.tag)
-    if tag == "path":
-        return len(_NUM.findall(el.get("d", ""))) // 2
-    if tag in ("polygon", "polyline"):
-        return len(_NUM.findall(el.get("points", ""))) // 2
-    return _SHAPE_POINTS.get(tag, 0)
-
-
-def check_expansion(path: Path, root: Any) -> tuple[int, int]:
-    """Count what a drawing expands to before any of it is built: elements and points,
-    every ``<use>`` counting as a copy of what it refers to.
-
-    Returns
-    -------
-    elements, points
-        Totals of the drawn document (the content of ``<defs>``, ``<symbol>``...
-        counts where a ``<use>`` places it; curves count their control points).
-
-    Raises
-    ------
-    ResourceError
-        More than :data:`MAX_ELEMENTS` elements, :data:`MAX_SOURCE_POINTS` points or
-        :data:`MAX_DEPTH` levels; the message names the element that expands most.
-    FileFormatError
-        A ``<use>`` refers to its own ancestor (the drawing would contain itself).
-    """
-    ids = {el.get("id"): el for el in root.iter() if el.get("id") is not None}
-
-    def parts(el: Any) -> list[Any]:
-        out = [c for c in el if isinstance(c.tag, str) and _local(c.tag) not in _NOT_DRAWN]
-        if _local(el.tag) == "use":
-            ref = el.get(_XLINK_HREF) or el.get("href") or ""
-            target = ids.get(ref[1:]) if ref.startswith("#") else None
-            if target is not None:
-                out.append(target)
-        return out
-
-    # Per element: (elements, points, depth) of one drawn copy, each element once (10^11 is
-    # only a number here); an iterative depth-first walk: a deep document must not exhaust
-    # Python's recursion.
-    size: dict[Any, tuple[int, int, int]] = {}
-    on_path: set[Any] = set()
-    stack: list[tuple[Any, bool, Any]] = [(root, False, root)]  # (element, done, reached from)
-    while stack:
-        el, done, via = stack.pop()
-        if done:
-            on_path.discard(el)
-            kids = [size[k] for k in parts(el)]
-            size[el] = (1 + sum(k[0] for k in kids), _own_points(el) + sum(k[1] for k in kids),
-                        1 + max((k[2] for k in kids), default=0))
-            continue
-        if el in size:
-            continue
-        if el in on_path:
-            raise FileFormatError(path, f"refers to {_name(el)}, which contains it: the drawing "
-                                  "would contain itself without end; expected a <use> of an "
-                                  "element outside it", element=_name(via))
-        on_path.add(el)
-        stack.append((el, True, via))
-        stack.extend((k, False, el) for k in parts(el) if k not in size)
-    if _over(size[root]):
-        # too deep: the whole document is; too many: the element that multiplies them
-        el = root if size[root][2] > MAX_DEPTH else _culprit(root, parts, size)
-        _refuse_expansion(path, el, size)
-    return size[root][:2]
-
-
-def _over(counts: tuple[int, int, int]) -> bool:
-    n, v, d = counts
-    return n > MAX_ELEMENTS or v > MAX_SOURCE_POINTS or d > MAX_DEPTH
-
-
-def _culprit(el: Any, parts: Any, size: dict[Any, tuple[int, int, int]]) -> Any:
-    """The element to name: the deepest one over a limit, following children (a ``<use>``
-    is named rather than what it refers to, which may be anywhere)."""
-    while _local(el.tag) != "use":
-        over = [k for k in parts(el) if k in size and _over(size[k])]
-        if not over:
-            break
-        el = max(over, key=lambda k: size[k])
-    return el
-
-
-def _refuse_expansion(path: Path, el: Any, size: dict[Any, tuple[int, int, int]]) -> None:
-    n, v, d = size[el]
-    if d > MAX_DEPTH:
-        what = f"elements nested {d:,} deep, more than the {MAX_DEPTH} levels allowed"
-    elif n > MAX_ELEMENTS:
-        what = f"{n:,} elements, more than the {MAX_ELEMENTS:,} allowed"
-    else:
-        what = f"{v:,} outline points, more than the {MAX_SOURCE_POINTS:,} allowed"
-    raise ResourceError(f"{path}, {_name(el)}: this draws {what} (every <use> counted as a "
-                        "copy of what it refers to); nothing was drawn. Simplify the drawing "
-                        "(unite shapes, replace nested <use> by one path) or split it")
-
 
 class _OutOfRange(ValueError):
     """A curve's control points are not finite or beyond 1e15 (the message says which)."""
@@ -527,8 +264,8 @@ def _hide_symbols(root: Any, raw: bytes) -> bytes:
     import xml.etree.ElementTree as ET
 
     parent = {c: p for p in root.iter() for c in p}
-    loose = [e for e in root.iter() if _local(e.tag) == "symbol"
-             and not any(_local(a.tag) == "defs" for a in _ancestors(e, parent))]
+    loose = [e for e in root.iter() if xml_local_name(e.tag) == "symbol"
+             and not any(xml_local_name(a.tag) == "defs" for a in _ancestors(e, parent))]
     if not loose:
         return raw
     defs = ET.SubElement(root, f"{{{_SVG_NS}}}defs")
@@ -600,7 +337,7 @@ def _drawing_stack(path: Path, raw: bytes, root: Any, *, units: str | None,
         if not (fill_ok or stroke_ok):
             continue
         rings = []
-        element = f"<{_local(el.values.get('tag', 'path'))}> #{idx + 1}" + (
+        element = f"<{xml_local_name(el.values.get('tag', 'path'))}> #{idx + 1}" + (
             f" id={excerpt(el.id, 40)}" if el.id else "")
         for sp in p.as_subpaths():
             try:
@@ -666,9 +403,10 @@ def _read(path: str | Path, settings: Settings) -> tuple[Path, bytes, Any]:
     raw = read_bytes(p, factor=_BYTES_PER_INPUT_BYTE, limit=settings.max_memory,
                      what="parsing this SVG file")
     root = _parse_xml(p, raw)
-    if _local(root.tag) != "svg":
-        raise FileFormatError(p, f"expected an <svg> root element; found <{_local(root.tag)}>",
-                              element=f"<{_local(root.tag)}>")
+    if xml_local_name(root.tag) != "svg":
+        tag = xml_local_name(root.tag)
+        raise FileFormatError(p, f"expected an <svg> root element; found <{tag}>",
+                              element=f"<{tag}>")
     namespace = root.tag[1:].partition("}")[0] if root.tag.startswith("{") else _SVG_NS
     if namespace != _SVG_NS:
         # another vocabulary's <svg> (a mistyped xmlns): svgelements reads none of it as SVG
@@ -713,7 +451,7 @@ def load_svg_layers(
     fit = check_positive("fit", fit)
     p, raw, root = _read(path, settings)
     if is_slic3r_svg(root):
-        return _slic3r_stack(p, root, units=units, fit=fit, settings=settings)
+        return slic3r_stack(p, root, units=units, fit=fit, settings=settings)
     return _drawing_stack(p, raw, root, units=units, fit=fit, settings=settings)
 
 

@@ -162,7 +162,7 @@ def test_a_silent_client_holds_up_no_one(private, prusa_short, tmp_path):
 
 
 def test_too_many_connections_are_refused_at_once(private):
-    from printability.server import _MAX_CLIENTS
+    from printability.server_connections import MAX_CLIENTS as _MAX_CLIENTS
 
     s = Server(private / "s.sock", request_timeout=3.0)
     idle = []

@@ -18,8 +18,9 @@ from hypothesis import strategies as st
 
 from printability import __version__
 from printability.postprocess import already_processed
-from printability.server import _Refusal, check_request, server_status
+from printability.server import check_request, server_status
 from printability.server_client import PROTOCOL, read_message, run_remote
+from printability.server_connections import Refusal as _Refusal
 
 pytestmark = pytest.mark.skipif(not hasattr(socket, "AF_UNIX"), reason="no Unix-domain sockets")
 
