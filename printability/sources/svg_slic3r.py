@@ -131,6 +131,15 @@ def slic3r_stack(path: Path, root: Any, *, units: str | None, fit: float | None,
         else:
             merged.append((zs[i], regions[i]))
     warnings: list[str] = []
+    # Slic3r 1.3's writer multiplies the slicing plane, already in mm, by its scaling factor
+    # (10^-6) once more: a stack whose top is under a micrometre while its outlines are
+    # millimetres across is that, not a print.
+    z_top = max(abs(z) for z, _ in merged)
+    x0, y0, x1, y1 = MultiPolygon([p for _, r in merged for p in r.geoms]).bounds
+    if 0.0 < z_top < 1e-3 and max(x1 - x0, y1 - y0) > 1e3 * z_top:
+        merged = [(z * 1e6, r) for z, r in merged]
+        warnings.append("slic3r:z is in units of 10⁻⁶ mm (Slic3r 1.3 writes the slicing "
+                        "plane scaled twice); read as mm")
     mids = "perl" in writers and "c++" not in writers
     zvals = [z * k for z, _ in merged]
     tops: list[float] = []
@@ -157,7 +166,7 @@ def slic3r_stack(path: Path, root: Any, *, units: str | None, fit: float | None,
         layers.append(Layer(z=float(top), height=float(h), region=region, index=i))
     meta = {
         "format": "slic3r-svg",
-        "writer": "Slic3r <= 1.2 (polygons, slic3r:z = slicing plane)" if mids
+        "writer": "Slic3r <= 1.3 (polygons, slic3r:z = slicing plane)" if mids
         else "Slic3r C++ SVGExport (paths, slic3r:z = layer top)",
         "skipped_groups": skipped_groups,
         "support_elements": support,

@@ -296,6 +296,7 @@ def test_slic3r_slice_svg(tmp_path: Path, perl: bool):
         assert lay.area == pytest.approx(sum(p.area for p in polys), rel=1e-9)
         assert lay.area == pytest.approx(expected, rel=1e-9)
     assert stack.meta["format"] == "slic3r-svg"
-    assert ("Perl" in stack.meta["writer"] or "<= 1.2" in stack.meta["writer"]) == perl
+    assert ("Perl" in stack.meta["writer"] or "<= 1.3" in stack.meta["writer"]) == perl
+    assert not stack.meta["warnings"]  # z in mm: nothing rescaled
     with pytest.raises(FileFormatError, match="9 layers"):
         load_svg_region(path)
