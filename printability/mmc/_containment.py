@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -19,7 +20,7 @@ from shapely.geometry.base import BaseGeometry
 
 from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.geometry import polygons_of
-from printability.mmc.reference import Orifice, offset_orifice
+from printability.mmc.orifices import Orifice, offset_orifice
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
@@ -93,47 +94,12 @@ def _segment_meets(kind, a, b, x0, y0, x1, y1, vx, vy, closed):  # pragma: no co
     return inside
 
 
-@numba.njit(cache=True)
-def _clear_of_boundary(tx, ty, phi, cx, cy, psi, kind, a, b, reach, vx, vy, closed,
-                       sx0, sy0, sx1, sy1, start, items, gx0, gy0, cs, gnx,
-                       gny):  # pragma: no cover
-    """Per pose: no edge of ∂G meets the orifice placed at (t, φ)."""
-    n = len(tx)
-    ok = np.ones(n, dtype=np.bool_)
-    for i in range(n):
-        c, s = math.cos(phi[i]), math.sin(phi[i])
-        wx = tx[i] + c * cx - s * cy  # orifice centre
-        wy = ty[i] + s * cx + c * cy
-        cp, sp = math.cos(phi[i] + psi), math.sin(phi[i] + psi)
-        ix0 = max(math.floor((wx - reach - gx0) / cs), 0)
-        ix1 = min(math.floor((wx + reach - gx0) / cs), gnx - 1)
-        iy0 = max(math.floor((wy - reach - gy0) / cs), 0)
-        iy1 = min(math.floor((wy + reach - gy0) / cs), gny - 1)
-        hit = False
-        for gy in range(iy0, iy1 + 1):
-            for gx in range(ix0, ix1 + 1):
-                cell = gy * gnx + gx
-                for m in range(start[cell], start[cell + 1]):
-                    e = items[m]
-                    # the edge in the orifice's frame: R(−(φ+ψ))·(p − w)
-                    ax, ay = sx0[e] - wx, sy0[e] - wy
-                    bx, by = sx1[e] - wx, sy1[e] - wy
-                    lx0, ly0 = cp * ax + sp * ay, -sp * ax + cp * ay
-                    lx1, ly1 = cp * bx + sp * by, -sp * bx + cp * by
-                    if _segment_meets(kind, a, b, lx0, ly0, lx1, ly1, vx, vy, closed):
-                        hit = True
-                        break
-                if hit:
-                    break
-            if hit:
-                break
-        ok[i] = not hit
-    return ok
+class Edges(NamedTuple):
+    """The edges (x0, y0) → (x1, y1) of ∂G in square buckets, for the containment kernel.
 
-
-@dataclass(frozen=True, eq=False)
-class Edges:
-    """The edges of ∂G in square buckets (CSR), for the containment kernel."""
+    Bucket (gx, gy), of side ``cs`` from the corner (gx0, gy0) on a ``gnx`` × ``gny`` grid,
+    holds the edges ``items[start[c]:start[c + 1]]``, c = gy·gnx + gx (CSR).
+    """
 
     x0: np.ndarray
     y0: np.ndarray
@@ -147,12 +113,66 @@ class Edges:
     gnx: int
     gny: int
 
-    def args(self) -> tuple:
-        return (self.x0, self.y0, self.x1, self.y1, self.start, self.items, self.gx0,
-                self.gy0, self.cs, self.gnx, self.gny)
+
+class _PlacedShape(NamedTuple):
+    """A :class:`ContainmentTest` as the kernel reads it: the shape's centre (cx, cy) in
+    the nozzle frame, its frame turned by ``psi`` radians, its kind and semi-axes (a, b),
+    its reach, its polygon edge ends (vx, vy) and whether touching counts."""
+
+    cx: float
+    cy: float
+    psi: float
+    kind: int
+    a: float
+    b: float
+    reach: float
+    vx: np.ndarray
+    vy: np.ndarray
+    closed: bool
+
+
+@numba.njit(cache=True)
+def _clear_of_boundary(tx, ty, phi, shape, edges):  # pragma: no cover
+    """Per pose (t, φ radians): no edge of ``edges`` (∂G) meets ``shape`` placed there."""
+    n = len(tx)
+    ok = np.ones(n, dtype=np.bool_)
+    cs, gx0, gy0, gnx = edges.cs, edges.gx0, edges.gy0, edges.gnx
+    reach = shape.reach
+    for i in range(n):
+        c, s = math.cos(phi[i]), math.sin(phi[i])
+        wx = tx[i] + c * shape.cx - s * shape.cy  # orifice centre
+        wy = ty[i] + s * shape.cx + c * shape.cy
+        cp, sp = math.cos(phi[i] + shape.psi), math.sin(phi[i] + shape.psi)
+        ix0 = max(math.floor((wx - reach - gx0) / cs), 0)
+        ix1 = min(math.floor((wx + reach - gx0) / cs), gnx - 1)
+        iy0 = max(math.floor((wy - reach - gy0) / cs), 0)
+        iy1 = min(math.floor((wy + reach - gy0) / cs), edges.gny - 1)
+        hit = False
+        for gy in range(iy0, iy1 + 1):
+            for gx in range(ix0, ix1 + 1):
+                cell = gy * gnx + gx
+                for m in range(edges.start[cell], edges.start[cell + 1]):
+                    e = edges.items[m]
+                    # the edge in the orifice's frame: R(−(φ+ψ))·(p − w)
+                    ax, ay = edges.x0[e] - wx, edges.y0[e] - wy
+                    bx, by = edges.x1[e] - wx, edges.y1[e] - wy
+                    lx0, ly0 = cp * ax + sp * ay, -sp * ax + cp * ay
+                    lx1, ly1 = cp * bx + sp * by, -sp * bx + cp * by
+                    if _segment_meets(shape.kind, shape.a, shape.b, lx0, ly0, lx1, ly1,
+                                      shape.vx, shape.vy, shape.closed):
+                        hit = True
+                        break
+                if hit:
+                    break
+            if hit:
+                break
+        ok[i] = not hit
+    return ok
 
 
 def boundary_edges(g: BaseGeometry, cell: float) -> Edges:
+    """The edges of ∂G in square buckets of side ``cell`` mm (an edge in every bucket its
+    bounding box overlaps)."""
     segs = []
     for poly in polygons_of(g):
         for ring in (poly.exterior, *poly.interiors):
@@ -255,11 +275,11 @@ def run_containment_test(test: ContainmentTest, inside_pt: tuple[float, float], 
     n_v = len(test.edges) // 2
     vx = np.ascontiguousarray(test.edges[:n_v]) if n_v else np.zeros(2)
     vy = np.ascontiguousarray(test.edges[n_v:]) if n_v else np.zeros(2)
+    shape = _PlacedShape(test.center[0], test.center[1], math.radians(test.psi), test.kind,
+                         test.a, test.b, test.reach, vx, vy, test.closed)
     ok[idx] = _clear_of_boundary(
         np.ascontiguousarray(t[idx, 0]), np.ascontiguousarray(t[idx, 1]),
-        np.ascontiguousarray(np.deg2rad(phi[idx])), test.center[0], test.center[1],
-        math.radians(test.psi), test.kind, test.a, test.b, test.reach, vx, vy, test.closed,
-        *edges.args())
+        np.ascontiguousarray(np.deg2rad(phi[idx])), shape, edges)
     return ok, len(idx)
 
 

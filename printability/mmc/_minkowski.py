@@ -40,17 +40,17 @@ from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from printability.geometry import polygons_of
-from printability.mmc._disk_offsets import (
-    _EMPTY,
-    _as_multi,
-    _boundary_segments,
-    _union_in_order,
+from printability.mmc._offset_bands import (
+    EMPTY,
+    as_multi,
+    boundary_segments,
+    union_in_order,
 )
 
-__all__ = ["_convex_pieces", "_largest", "minkowski_dilate", "minkowski_erode"]
+__all__ = ["convex_pieces", "largest_polygon", "minkowski_dilate", "minkowski_erode"]
 
 
-def _convex_pieces(k: Polygon) -> list[Polygon]:
+def convex_pieces(k: Polygon) -> list[Polygon]:
     """K as a union of convex polygons (itself, or a constrained Delaunay triangulation)."""
     k = shapely.normalize(k)
     if k.convex_hull.area - k.area <= 1e-12 * max(k.area, 1e-300):
@@ -61,12 +61,12 @@ def _convex_pieces(k: Polygon) -> list[Polygon]:
 def _boundary_minkowski(geom: BaseGeometry, pieces: Sequence[Polygon], sign: float) -> BaseGeometry:
     """∂geom ⊕ (sign·K) for K = ∪ pieces (convex), as a union of convex hulls."""
     hulls = _boundary_hulls(geom, pieces, sign)
-    return _union_in_order(hulls) if len(hulls) else _EMPTY
+    return union_in_order(hulls) if len(hulls) else EMPTY
 
 
 def _boundary_hulls(geom: BaseGeometry, pieces: Sequence[Polygon], sign: float) -> np.ndarray:
     """The convex hulls e ⊕ sign·K_i, one per boundary segment e and convex piece K_i."""
-    segs = _boundary_segments(geom)
+    segs = boundary_segments(geom)
     if len(segs) == 0 or not pieces:
         return np.empty(0, dtype=object)
     hulls = []
@@ -86,13 +86,13 @@ def minkowski_erode(g: BaseGeometry, k: BaseGeometry) -> MultiPolygon:
     module docstring). Cost O(n·m) convex hulls for n boundary segments and
     m convex pieces of K, then a union.
     """
-    k = _largest(k)
+    k = largest_polygon(k)
     if k is None or g.is_empty:
-        return _EMPTY
+        return EMPTY
     k0 = k.representative_point()
-    hulls = _boundary_hulls(g, _convex_pieces(k), -1.0)
+    hulls = _boundary_hulls(g, convex_pieces(k), -1.0)
     moved = shapely.affinity.translate(g, -k0.x, -k0.y)
-    p = _as_multi(shapely.difference(moved, _union_in_order(hulls)))
+    p = as_multi(shapely.difference(moved, union_in_order(hulls)))
     # MMC check with exact predicates: no hull (a set of positions where the
     # footprint meets ∂G) may share interior points with P; cut any that does
     tree = shapely.STRtree(hulls)
@@ -111,7 +111,7 @@ def minkowski_erode(g: BaseGeometry, k: BaseGeometry) -> MultiPolygon:
         cut = hulls[bad[0]]
         for h in hulls[bad[1:]]:
             cut = shapely.union(cut, h)
-        p = _as_multi(shapely.difference(p, cut))
+        p = as_multi(shapely.difference(p, cut))
     return p
 
 
@@ -121,13 +121,14 @@ def minkowski_dilate(p: BaseGeometry, pieces: Sequence[Polygon]) -> MultiPolygon
     Computed as (P + k₀) ∪ (∂P ⊕ K) (proof in the module docstring).
     """
     if p.is_empty or not pieces:
-        return _EMPTY
+        return EMPTY
     k0 = pieces[0].representative_point()
     moved = shapely.affinity.translate(p, k0.x, k0.y)
     band = _boundary_minkowski(p, pieces, 1.0)
-    return _as_multi(shapely.union(moved, band))
+    return as_multi(shapely.union(moved, band))
 
 
-def _largest(geom: BaseGeometry) -> Polygon | None:
+def largest_polygon(geom: BaseGeometry) -> Polygon | None:
+    """The polygon of ``geom`` of largest area (None when it has none)."""
     polys = polygons_of(geom)
     return max(polys, key=lambda q: q.area) if polys else None

@@ -19,11 +19,11 @@ import numpy as np
 from shapely.geometry.base import BaseGeometry
 
 from printability.machine import Machine
-from printability.mmc.reference import angle_gap, orifices_of
+from printability.mmc.orifices import angle_gap, orifices_of
 from printability.nozzle import Nozzle
 from printability.settings import Settings
 
-__all__ = ["SampleSpace", "_placed", "_ring", "sample_space"]
+__all__ = ["SampleSpace", "placed", "ring_coords", "sample_space"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,7 +125,7 @@ def sample_space(
     gap, wrap_a = angle_gap(machine, angles, period)
     turning = machine.turns(nozzle) and len(angles) > 1
     orifices = orifices_of(nozzle, quad_segs=settings.quad_segs)
-    pts = np.concatenate([_ring(o.inner) for o in orifices])
+    pts = np.concatenate([ring_coords(o.inner) for o in orifices])
     gminx, gminy, gmaxx, gmaxy = region.bounds
     lo = np.array([np.inf, np.inf])
     hi = np.array([-np.inf, -np.inf])
@@ -163,7 +163,7 @@ def sample_space(
 # --------------------------------------------------------------------------- placing
 
 
-def _placed(coords: np.ndarray, phi: np.ndarray, t: np.ndarray) -> np.ndarray:
+def placed(coords: np.ndarray, phi: np.ndarray, t: np.ndarray) -> np.ndarray:
     """``coords`` (n, 2) in the nozzle frame placed at k poses → (k, n, 2)."""
     a = np.deg2rad(phi)[:, None]
     c, s = np.cos(a), np.sin(a)
@@ -172,7 +172,7 @@ def _placed(coords: np.ndarray, phi: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
-def _ring(poly: BaseGeometry) -> np.ndarray:
+def ring_coords(poly: BaseGeometry) -> np.ndarray:
     """Closed exterior ring coordinates of a polygon (n + 1, 2)."""
     return np.asarray(poly.exterior.coords)
 

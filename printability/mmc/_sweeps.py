@@ -32,10 +32,10 @@ import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
-from printability.mmc._sample_space import SampleSpace, _placed, _ring
-from printability.mmc.reference import Orifice
+from printability.mmc._sample_space import SampleSpace, placed, ring_coords
+from printability.mmc.orifices import Orifice
 
-__all__ = ["_sweep"]
+__all__ = ["sweep"]
 
 
 def _runs(mask: np.ndarray, wrap: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -94,12 +94,12 @@ class _Pieces:
 
 
 def _pieces(orifices: tuple[Orifice, ...], grow: float = 0.0) -> _Pieces:
-    inner = tuple(_ring(p)[:-1] for o in orifices for p in o.inner_pieces)
+    inner = tuple(ring_coords(p)[:-1] for o in orifices for p in o.inner_pieces)
     outs = []
     for o in orifices:
         for p in o.outer_pieces:
             q = p.buffer(grow, join_style="mitre", mitre_limit=1e3) if grow > 0 else p
-            outs.append(_ring(q)[:-1])
+            outs.append(ring_coords(q)[:-1])
     diam = 0.0 if all(o.disk is not None for o in orifices) else max(
         o.diameter + 2 * grow for o in orifices)
     return _Pieces(inner, tuple(outs), diam)
@@ -124,7 +124,7 @@ def _rotation_radius(phi_a: np.ndarray, t_a: np.ndarray, phi_b: np.ndarray,
     return np.where(det > 1e-18, out, 0.0)
 
 
-def _sweep(
+def sweep(
     space: SampleSpace,
     mask: np.ndarray,
     orifices: tuple[Orifice, ...],
@@ -166,100 +166,126 @@ def _sweep(
         if n < 2:
             if not verify:  # every sample still needs a polygon in the outer bound
                 seg = np.flatnonzero(mask.reshape(-1))
-                ids2 = flat_ids.reshape(-1, 1)
                 z = np.zeros(len(seg), dtype=np.int64)
-                _sweep_segments(space, ids2, seg, z, z, 1, j, base, g, verify=False,
-                                out=out, covered=covered, step_rad=0.0,
-                                nozzle_radius=nozzle_radius)
+                axis = _Axis(space, flat_ids.reshape(-1, 1), 1, j, base, g, nozzle_radius, out,
+                             covered)
+                _sweep_segments(axis, seg, z, z, verify=False, step_rad=0.0)
             continue
-        kind = space.kinds[j]
+        axis = _Axis(space, np.moveaxis(flat_ids, j, -1).reshape(-1, n), n, j, base, g,
+                     nozzle_radius, out, covered)
         m2 = np.moveaxis(mask, j, -1).reshape(-1, n)
-        ids2 = np.moveaxis(flat_ids, j, -1).reshape(-1, n)
-        rows, starts, lengths = _runs(m2, space.wrap[j])
-        if not len(rows):
-            continue
-        step_rad = math.radians(space.steps[j]) if kind != "prismatic" else 0.0
-        reach = space.reaches[j]
-        if kind == "prismatic":
-            group = max(int(lengths.max()) - 1, 1)
-        else:
-            group = 1
-            while group < n and (reach * _chord_excess((group + 1) * step_rad)
-                                 + (group + 1) * step_rad * base.shape_diameter / 4
-                                 ) <= tolerance:
-                group += 1
-        seg_rows, seg_a, seg_b = [], [], []
-        closed = space.wrap[j]
-        for r, s0, ln in zip(rows.tolist(), starts.tolist(), lengths.tolist(), strict=True):
-            if ln == 1:
-                seg_rows.append(r)
-                seg_a.append(s0)
-                seg_b.append(s0)
-                continue
-            end = ln if (closed and ln == n) else ln - 1  # a full turn closes on itself
-            k = 0
-            while k < end:
-                e = min(k + group, end)
-                seg_rows.append(r)
-                seg_a.append(s0 + k)
-                seg_b.append(s0 + e)
-                k = e
-        rows_a = np.asarray(seg_rows, dtype=np.int64)
-        a_a = np.asarray(seg_a, dtype=np.int64)
-        b_a = np.asarray(seg_b, dtype=np.int64)
-        kept, exc = _sweep_segments(space, ids2, rows_a, a_a, b_a, n, j, base, g,
-                                    verify=verify, out=out, covered=covered,
-                                    step_rad=step_rad, nozzle_radius=nozzle_radius,
-                                    check=fine_outer if kind == "prismatic" else None)
-        excess = max(excess, exc)
-        bad = np.flatnonzero(~kept & (b_a - a_a > 1))
-        if verify and kind == "prismatic":
-            # a translation's hull is its exact sweep: it fails because some placement
-            # grazes ∂G, most often an end of the run. Try the run without its first
-            # and/or last sample, then halves, down to single steps.
-            rows_q, a_q, b_q = rows_a[bad], a_a[bad], b_a[bad]
-            while len(rows_q):
-                tries = [(a_q, b_q - 1), (a_q + 1, b_q), (a_q + 1, b_q - 1)]
-                left = np.ones(len(rows_q), dtype=bool)
-                for ta, tb in tries:
-                    sel = np.flatnonzero(left & (tb - ta >= 1))
-                    if not len(sel):
-                        continue
-                    ok_t, _ = _sweep_segments(space, ids2, rows_q[sel], ta[sel], tb[sel], n, j,
-                                              base, g, verify=True, out=out, covered=covered,
-                                              step_rad=0.0, nozzle_radius=nozzle_radius,
-                                              check=fine_outer)
-                    left[sel[ok_t]] = False
-                split = np.flatnonzero(left & (b_q - a_q >= 4))
-                mid = (a_q[split] + b_q[split]) // 2
-                rows_q = np.concatenate([rows_q[split], rows_q[split]])
-                a_q, b_q = (np.concatenate([a_q[split], mid]),
-                            np.concatenate([mid, b_q[split]]))
-                if len(rows_q):
-                    ok_h, _ = _sweep_segments(space, ids2, rows_q, a_q, b_q, n, j, base, g,
-                                              verify=True, out=out, covered=covered,
-                                              step_rad=0.0, nozzle_radius=nozzle_radius,
-                                              check=fine_outer)
-                    keep_q = ~ok_h & (b_q - a_q > 1)
-                    rows_q, a_q, b_q = rows_q[keep_q], a_q[keep_q], b_q[keep_q]
-        # a revolute group that failed is retried pairwise (its hull bulges more than
-        # its pairs')
-        if verify and kind != "prismatic" and len(bad):
-            spans = b_a[bad] - a_a[bad]
-            pr = np.repeat(rows_a[bad], spans)
-            pa = np.concatenate([np.arange(a, b) for a, b in
-                                 zip(a_a[bad].tolist(), b_a[bad].tolist(), strict=True)])
-            _, exc = _sweep_segments(space, ids2, pr, pa, pa + 1, n, j, base, g, verify=True,
-                                     out=out, covered=covered, step_rad=step_rad,
-                                     nozzle_radius=nozzle_radius)
-            excess = max(excess, exc)
+        excess = max(excess, _sweep_axis(axis, m2, tolerance, verify, fine_outer))
     return out, excess, covered
 
 
-def _sweep_segments(space: SampleSpace, ids2: np.ndarray, rows: np.ndarray, a: np.ndarray,
-                    b: np.ndarray, n: int, j: int, base: _Pieces, g: BaseGeometry, *,
-                    verify: bool, out: list[BaseGeometry], covered: np.ndarray,
-                    step_rad: float, nozzle_radius: float,
+@dataclass(frozen=True, eq=False)
+class _Axis:
+    """The sweep along joint ``j``: the samples' flat ids as rows of ``n`` values of the
+    joint (``ids2``), the pieces swept, G, and where kept polygons (``out``) and the
+    samples they cover (``covered``) are recorded."""
+
+    space: SampleSpace
+    ids2: np.ndarray
+    n: int
+    j: int
+    base: _Pieces
+    g: BaseGeometry
+    nozzle_radius: float
+    out: list[BaseGeometry]
+    covered: np.ndarray
+
+
+def _sweep_axis(axis: _Axis, m2: np.ndarray, tolerance: float, verify: bool,
+                fine_outer: tuple[np.ndarray, ...]) -> float:
+    """Sweep the runs of ``m2`` (rows × n) along one joint; the largest revolute excess."""
+    space, n, j = axis.space, axis.n, axis.j
+    kind = space.kinds[j]
+    rows, starts, lengths = _runs(m2, space.wrap[j])
+    if not len(rows):
+        return 0.0
+    step_rad = math.radians(space.steps[j]) if kind != "prismatic" else 0.0
+    reach = space.reaches[j]
+    if kind == "prismatic":
+        group = max(int(lengths.max()) - 1, 1)
+    else:
+        group = 1
+        while group < n and (reach * _chord_excess((group + 1) * step_rad)
+                             + (group + 1) * step_rad * axis.base.shape_diameter / 4
+                             ) <= tolerance:
+            group += 1
+    rows_a, a_a, b_a = _groups(rows, starts, lengths, group, n, space.wrap[j])
+    kept, excess = _sweep_segments(axis, rows_a, a_a, b_a, verify=verify, step_rad=step_rad,
+                                   check=fine_outer if kind == "prismatic" else None)
+    bad = np.flatnonzero(~kept & (b_a - a_a > 1))
+    if verify and kind == "prismatic":
+        _retry_translations(axis, rows_a[bad], a_a[bad], b_a[bad], fine_outer)
+    # a revolute group that failed is retried pairwise (its hull bulges more than
+    # its pairs')
+    if verify and kind != "prismatic" and len(bad):
+        spans = b_a[bad] - a_a[bad]
+        pr = np.repeat(rows_a[bad], spans)
+        pa = np.concatenate([np.arange(a, b) for a, b in
+                             zip(a_a[bad].tolist(), b_a[bad].tolist(), strict=True)])
+        _, exc = _sweep_segments(axis, pr, pa, pa + 1, verify=True, step_rad=step_rad)
+        excess = max(excess, exc)
+    return excess
+
+
+def _groups(rows: np.ndarray, starts: np.ndarray, lengths: np.ndarray, group: int, n: int,
+            closed: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Runs cut into groups of at most ``group`` steps: (row, first, last sample) each;
+    with ``closed`` a run of the whole row is a full turn that closes on itself."""
+    seg_rows, seg_a, seg_b = [], [], []
+    for r, s0, ln in zip(rows.tolist(), starts.tolist(), lengths.tolist(), strict=True):
+        if ln == 1:
+            seg_rows.append(r)
+            seg_a.append(s0)
+            seg_b.append(s0)
+            continue
+        end = ln if (closed and ln == n) else ln - 1  # a full turn closes on itself
+        k = 0
+        while k < end:
+            e = min(k + group, end)
+            seg_rows.append(r)
+            seg_a.append(s0 + k)
+            seg_b.append(s0 + e)
+            k = e
+    return (np.asarray(seg_rows, dtype=np.int64), np.asarray(seg_a, dtype=np.int64),
+            np.asarray(seg_b, dtype=np.int64))
+
+
+def _retry_translations(axis: _Axis, rows_q: np.ndarray, a_q: np.ndarray, b_q: np.ndarray,
+                        fine_outer: tuple[np.ndarray, ...]) -> None:
+    """Retry translation runs whose hull failed.
+
+    A translation's hull is its exact sweep: it fails because some placement grazes
+    ∂G, most often an end of the run. Try the run without its first and/or last
+    sample, then halves, down to single steps.
+    """
+    while len(rows_q):
+        tries = [(a_q, b_q - 1), (a_q + 1, b_q), (a_q + 1, b_q - 1)]
+        left = np.ones(len(rows_q), dtype=bool)
+        for ta, tb in tries:
+            sel = np.flatnonzero(left & (tb - ta >= 1))
+            if not len(sel):
+                continue
+            ok_t, _ = _sweep_segments(axis, rows_q[sel], ta[sel], tb[sel], verify=True,
+                                      step_rad=0.0, check=fine_outer)
+            left[sel[ok_t]] = False
+        split = np.flatnonzero(left & (b_q - a_q >= 4))
+        mid = (a_q[split] + b_q[split]) // 2
+        rows_q = np.concatenate([rows_q[split], rows_q[split]])
+        a_q, b_q = (np.concatenate([a_q[split], mid]),
+                    np.concatenate([mid, b_q[split]]))
+        if len(rows_q):
+            ok_h, _ = _sweep_segments(axis, rows_q, a_q, b_q, verify=True, step_rad=0.0,
+                                      check=fine_outer)
+            keep_q = ~ok_h & (b_q - a_q > 1)
+            rows_q, a_q, b_q = rows_q[keep_q], a_q[keep_q], b_q[keep_q]
+
+
+def _sweep_segments(axis: _Axis, rows: np.ndarray, a: np.ndarray, b: np.ndarray, *,
+                    verify: bool, step_rad: float,
                     check: tuple[np.ndarray, ...] | None = None) -> tuple[np.ndarray, float]:
     """Hull of the placements from sample a to sample b (indices mod n) of each row.
 
@@ -268,7 +294,8 @@ def _sweep_segments(space: SampleSpace, ids2: np.ndarray, rows: np.ndarray, a: n
     """
     if not len(rows):
         return np.zeros(0, dtype=bool), 0.0
-    kind = space.kinds[j]
+    space, ids2, n, base = axis.space, axis.ids2, axis.n, axis.base
+    kind = space.kinds[axis.j]
     span = b - a
     flat_a = ids2[rows, a % n]
     flat_b = ids2[rows, b % n]
@@ -278,7 +305,7 @@ def _sweep_segments(space: SampleSpace, ids2: np.ndarray, rows: np.ndarray, a: n
     seg_excess = np.zeros(len(rows))
     if kind != "prismatic":
         # the rotation's true radius (joint axis to the farthest nozzle point) per segment
-        rho = _rotation_radius(phi_a, t_a, phi_b, t_b) + nozzle_radius
+        rho = _rotation_radius(phi_a, t_a, phi_b, t_b) + axis.nozzle_radius
         theta = span * step_rad
         chord = {w: _chord_excess(w * step_rad) for w in np.unique(span).tolist()}
         seg_excess = rho * np.array([chord[w] for w in span.tolist()]) \
@@ -293,14 +320,14 @@ def _sweep_segments(space: SampleSpace, ids2: np.ndarray, rows: np.ndarray, a: n
 
             def inside(polys: tuple[np.ndarray, ...], sel: np.ndarray) -> np.ndarray:
                 if grow > 0:
-                    polys = tuple(_ring(Polygon(c).buffer(grow, join_style="mitre",
-                                                          mitre_limit=1e3))[:-1]
+                    polys = tuple(ring_coords(Polygon(c).buffer(grow, join_style="mitre",
+                                                                mitre_limit=1e3))[:-1]
                                   for c in polys)
                 res = np.ones(len(sel), dtype=bool)
                 for coords in polys:
-                    hull = _hulls([_placed(coords, phi_a[sel], t_a[sel]),
-                                   _placed(coords, phi_b[sel], t_b[sel])])
-                    res &= shapely.contains_properly(g, hull)
+                    hull = _hulls([placed(coords, phi_a[sel], t_a[sel]),
+                                   placed(coords, phi_b[sel], t_b[sel])])
+                    res &= shapely.contains_properly(axis.g, hull)
                 return res
 
             # the coarse outer polygons contain the true orifice too: a hull that passes
@@ -313,29 +340,36 @@ def _sweep_segments(space: SampleSpace, ids2: np.ndarray, rows: np.ndarray, a: n
                 ok[again] = inside(check, again)
         idx = np.flatnonzero(ok)
         for coords in base.inner:
-            out.extend(_hulls([_placed(coords, phi_a[idx], t_a[idx]),
-                               _placed(coords, phi_b[idx], t_b[idx])]).tolist())
+            axis.out.extend(_hulls([placed(coords, phi_a[idx], t_a[idx]),
+                                    placed(coords, phi_b[idx], t_b[idx])]).tolist())
     else:
-        # outer bound: every placement of the group inside the hull (all of them for a
-        # rotation, the two ends for a translation)
-        for coords in base.outer:
-            if kind == "prismatic" or span.max() <= 1:
-                out.extend(_hulls([_placed(coords, phi_a, t_a),
-                                   _placed(coords, phi_b, t_b)]).tolist())
-                continue
-            for width in np.unique(span).tolist():
-                sel = np.flatnonzero(span == width)
-                parts = []
-                for s in range(width + 1):
-                    f = ids2[rows[sel], (a[sel] + s) % n]
-                    ph, tt = space.pose(space.joint_vectors(f))
-                    parts.append(_placed(coords, ph, tt))
-                out.extend(_hulls(parts).tolist())
+        _outer_hulls(axis, rows, a, span, phi_a, t_a, phi_b, t_b)
     kept = np.flatnonzero(ok)
     if len(kept):
         lens = (b[kept] - a[kept] + 1).astype(np.int64)
         first = np.repeat(np.cumsum(lens) - lens, lens)
         cols = (np.repeat(a[kept], lens) + np.arange(int(lens.sum())) - first) % n
-        covered.flat[ids2[np.repeat(rows[kept], lens), cols]] = True
+        axis.covered.flat[ids2[np.repeat(rows[kept], lens), cols]] = True
     exc = float(seg_excess[ok].max()) if verify and ok.any() else 0.0
     return ok, exc
+
+
+def _outer_hulls(axis: _Axis, rows: np.ndarray, a: np.ndarray, span: np.ndarray,
+                 phi_a: np.ndarray, t_a: np.ndarray, phi_b: np.ndarray,
+                 t_b: np.ndarray) -> None:
+    """The outer bound's hulls: every placement of a group inside its hull (all of them
+    for a rotation, the two ends (φ_a, t_a), (φ_b, t_b) for a translation)."""
+    space, ids2, n = axis.space, axis.ids2, axis.n
+    for coords in axis.base.outer:
+        if space.kinds[axis.j] == "prismatic" or span.max() <= 1:
+            axis.out.extend(_hulls([placed(coords, phi_a, t_a),
+                                    placed(coords, phi_b, t_b)]).tolist())
+            continue
+        for width in np.unique(span).tolist():
+            sel = np.flatnonzero(span == width)
+            parts = []
+            for s in range(width + 1):
+                f = ids2[rows[sel], (a[sel] + s) % n]
+                ph, tt = space.pose(space.joint_vectors(f))
+                parts.append(placed(coords, ph, tt))
+            axis.out.extend(_hulls(parts).tolist())

@@ -78,20 +78,19 @@ from printability.errors import InputError
 from printability.geometry import polygons_of, rotation_matrix
 from printability.machine import Machine
 from printability.mmc._disk_offsets import (
-    _EMPTY,
-    _as_multi,
-    _certified_erosion,
-    _disk_cover,
+    certified_erosion,
     chord_factor,
     dilate_disk,
+    disk_cover,
     erode_disk,
 )
 from printability.mmc._minkowski import (
-    _convex_pieces,
-    _largest,
+    convex_pieces,
+    largest_polygon,
     minkowski_dilate,
     minkowski_erode,
 )
+from printability.mmc._offset_bands import EMPTY, as_multi
 from printability.mmc.components import angle_ranges, component_labels
 from printability.mmc.result import Components, MMCInternalError, MMCResult, MotionRestriction
 from printability.nozzle import Footprint, Nozzle
@@ -147,19 +146,19 @@ def _p_disk(g: BaseGeometry, o: _Placed, scale: float, quad_segs: int, outer: bo
     g1 = shapely.affinity.affine_transform(g, _affine(inv))
     p1 = erode_disk(g1, 1.0, quad_segs=quad_segs, outer=outer)
     # P = L·P' − c
-    return _as_multi(shapely.affinity.affine_transform(p1, _affine(lm, (-o.c[0], -o.c[1]))))
+    return as_multi(shapely.affinity.affine_transform(p1, _affine(lm, (-o.c[0], -o.c[1]))))
 
 
 def _s_disk(p: BaseGeometry, o: _Placed, scale: float, quad_segs: int, outer: bool) -> MultiPolygon:
     """P ⊕ (c + scale·L·D) (affine trick)."""
     if p.is_empty:
-        return _EMPTY
+        return EMPTY
     lm = scale * np.asarray(o.lmat).reshape(2, 2)
     inv = np.linalg.inv(lm)
     # L⁻¹(P + c)
     p1 = shapely.affinity.affine_transform(p, _affine(inv, inv @ np.asarray(o.c)))
     s1 = dilate_disk(p1, 1.0, quad_segs=quad_segs, outer=outer)
-    return _as_multi(shapely.affinity.affine_transform(s1, _affine(lm)))
+    return as_multi(shapely.affinity.affine_transform(s1, _affine(lm)))
 
 
 @dataclass(frozen=True)
@@ -191,17 +190,17 @@ def _one_angle(
             k = o.poly
             pi = minkowski_erode(g, k)
             if delta > 0:
-                k_minus = _largest(_certified_erosion(k, delta, quad_segs))
+                k_minus = largest_polygon(certified_erosion(k, delta, quad_segs))
                 # K_i ⊕ D_δ ⊆ hull(K_i's vertices + a polygon containing D_δ)
                 ring = shapely.get_coordinates(shapely.buffer(
-                    Point(0.0, 0.0), delta * _disk_cover(quad_segs), quad_segs=quad_segs))
+                    Point(0.0, 0.0), delta * disk_cover(quad_segs), quad_segs=quad_segs))
                 pieces_plus = []
-                for c in _convex_pieces(k):
+                for c in convex_pieces(k):
                     v = np.asarray(c.exterior.coords)[:-1]
                     sums = (v[:, None, :] + ring[None, :, :]).reshape(-1, 2)
                     pieces_plus.append(shapely.convex_hull(shapely.multipoints(sums)))
             else:
-                k_minus, pieces_plus = k, _convex_pieces(k)
+                k_minus, pieces_plus = k, convex_pieces(k)
             if k_minus is None:
                 whole_g, po = True, None
             else:
@@ -210,7 +209,7 @@ def _one_angle(
         p_in = pi if p_in is None else p_in.intersection(pi)
         if po is not None:
             p_out = po if p_out is None else p_out.intersection(po)
-    p_in = _as_multi(p_in if p_in is not None else _EMPTY)
+    p_in = as_multi(p_in if p_in is not None else EMPTY)
     s_in_parts = []
     s_out_parts = []
     for o, s_plus, pieces_plus in grown:
@@ -219,16 +218,16 @@ def _one_angle(
             if not whole_g and p_out is not None:
                 s_out_parts.append(_s_disk(p_out, o, s_plus, quad_segs, outer=True))
         else:
-            s_in_parts.append(minkowski_dilate(p_in, _convex_pieces(o.poly)))
+            s_in_parts.append(minkowski_dilate(p_in, convex_pieces(o.poly)))
             if not whole_g and p_out is not None:
                 s_out_parts.append(minkowski_dilate(p_out, pieces_plus or []))
-    s_in = _as_multi(shapely.union_all(s_in_parts)) if s_in_parts else _EMPTY
+    s_in = as_multi(shapely.union_all(s_in_parts)) if s_in_parts else EMPTY
     if whole_g:
         s_out = g
     elif p_out is None:
-        s_out = _EMPTY
+        s_out = EMPTY
     else:
-        s_out = _as_multi(shapely.union_all(s_out_parts)) if s_out_parts else _EMPTY
+        s_out = as_multi(shapely.union_all(s_out_parts)) if s_out_parts else EMPTY
     return _AngleResult(p_in, s_in, s_out)
 
 
@@ -394,7 +393,7 @@ def mmc_exact(
         )
     t0 = time.perf_counter()
     q = settings.quad_segs
-    g = region if isinstance(region, MultiPolygon) else _as_multi(region)
+    g = region if isinstance(region, MultiPolygon) else as_multi(region)
     angles, gap, wrap = sampled_angles(nozzle, machine, settings)
     delta = angular_margin(nozzle, gap)
     results: list[_AngleResult] = []
@@ -408,13 +407,13 @@ def mmc_exact(
         _check_p_inner(g, res_phi.p_inner, *deep, float(phi))
         results.append(res_phi)
 
-    s_in = _as_multi(shapely.union_all([r.s_inner for r in results]))
+    s_in = as_multi(shapely.union_all([r.s_inner for r in results]))
     # safety net: S ⊆ G holds by construction; should a GEOS failure break it,
     # clip (true S ⊆ G, so clipping keeps S_inner ⊆ S) and say so
     leak = float(shapely.difference(s_in, g).area)
     if leak > 1e-9 * float(g.area):
-        s_in = _as_multi(shapely.intersection(s_in, g))
-    s_out = _as_multi(shapely.intersection(shapely.union_all([r.s_outer for r in results]), g))
+        s_in = as_multi(shapely.intersection(s_in, g))
+    s_out = as_multi(shapely.intersection(shapely.union_all([r.s_outer for r in results]), g))
     target_area = float(g.area)
     built = float(s_in.area)
     lost = max(target_area - built, 0.0)

@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import shapely
@@ -65,17 +65,15 @@ from shapely.geometry.base import BaseGeometry
 from printability.errors import ResourceError
 from printability.machine import Machine
 from printability.mmc._containment import (
+    ContainmentTest,
+    Edges,
     boundary_edges,
     containment_test,
     run_containment_test,
 )
-from printability.mmc._sample_space import SampleSpace, _placed, _ring, sample_space
-from printability.mmc._sweeps import _sweep
-from printability.mmc.reference import (
-    Orifice,
-    grid_rectangles,
-    orifices_of,
-)
+from printability.mmc._sample_space import SampleSpace, placed, ring_coords, sample_space
+from printability.mmc._sweeps import sweep
+from printability.mmc.orifices import Orifice, grid_rectangles, orifices_of
 from printability.mmc.result import Components, MMCResult, MotionRestriction
 from printability.nozzle import Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
@@ -246,22 +244,11 @@ def mmc_sampled(
     space = sample_space(g, nozzle, machine, settings=settings)
     orifices = orifices_of(nozzle, quad_segs=settings.quad_segs)
     n = space.size
-    p = len(space.values)
     is_chain = machine.kind == "chain"
     resolution = space.slack if is_chain else float(settings.resolution)
     rot_steps = [s for s, k in zip(space.steps, space.kinds, strict=True) if k != "prismatic"]
     angle_step = max(rot_steps) if rot_steps and (is_chain or space.levers[-1] > 0) else 0.0
-    describe = ", ".join(f"{nm}: {len(v):,} values" for nm, v in
-                         zip(space.names, space.values, strict=True))
-    memory = n * (2 + 4 + 8 * p) + _CHUNK * (16 * p + 64 * len(orifices) + 64)
-    if n > max_samples or memory > settings.max_memory:
-        raise ResourceError(
-            f"the sampled engine would test {n:,} configurations of machine {machine.name!r} "
-            f"({describe}) needing about {memory / 2**20:,.0f} MiB; the limits are "
-            f"{max_samples:,} configurations and {settings.max_memory / 2**20:,.0f} MiB: use "
-            "coarser joint steps in the machine profile (or a coarser resolution / angle "
-            "step on xy and ttr machines), or narrow the joint ranges to the part"
-        )
+    describe = _check_size(space, machine, len(orifices), settings, max_samples)
     notes: list[str] = []
     if n == 0:
         notes.append("the nozzle does not fit in the region's bounding box at any sampled "
@@ -270,48 +257,11 @@ def mmc_sampled(
 
     shapely.prepare(g)
     slack = space.slack
-    reach_max = max(o.circumradius + math.hypot(*o.center) for o in orifices)
-    edges = boundary_edges(g, max(reach_max / 2, 1e-3))
-    feasible_tests = [containment_test(o, 0.0, closed=True) for o in orifices]
-    r_in_min = min(o.inradius for o in orifices)
-    has_outer = slack * 1.01 < r_in_min
-    opt_tests = [containment_test(o, slack, closed=False) for o in orifices] if has_outer else []
-    if has_outer and any(tt.empty for tt in opt_tests):
-        has_outer = False
-    if not has_outer:
-        notes.append(
-            f"a configuration can be {slack:.3g} mm (every nozzle point) away from the nearest "
-            f"sample, more than the nozzle's inscribed radius {r_in_min:.3g} mm: no lower "
-            "bound on the lost area (reported as 0); use finer joint steps"
-        )
-
-    feasible = np.zeros(n, dtype=bool)
-    optimistic = np.zeros(n, dtype=bool)
-    over_part = 0  # samples with the first orifice's centre over G
-    # samples whose nozzle, grown by the slack, reaches G's bounding box: with none, no
-    # configuration at all (sampled or not) can print anything
-    near = 0
-    minx, miny, maxx, maxy = g.bounds
-    margin = nozzle.radius + slack
-    for flat in _chunks(space, machine, nozzle, g):
-        phi, t = space.pose(space.joint_vectors(flat))
-        near += int(np.count_nonzero((t[:, 0] >= minx - margin) & (t[:, 0] <= maxx + margin)
-                                     & (t[:, 1] >= miny - margin) & (t[:, 1] <= maxy + margin)))
-        ok = np.ones(len(flat), dtype=bool)
-        for k, (test, o) in enumerate(zip(feasible_tests, orifices, strict=True)):
-            res, n_over = run_containment_test(test, o.center, g, edges, phi, t, ok)
-            ok &= res
-            over_part += n_over if k == 0 else 0
-        feasible[flat] = ok
-        if has_outer:
-            oo = np.ones(len(flat), dtype=bool)
-            for test, o in zip(opt_tests, orifices, strict=True):
-                oo &= run_containment_test(test, o.center, g, edges, phi, t, oo)[0]
-            optimistic[flat] = oo | ok
-    feasible = feasible.reshape(space.shape)
-    optimistic = optimistic.reshape(space.shape)
+    tests = _containment_tests(g, orifices, slack, notes)
+    tested = _test_samples(space, machine, nozzle, g, orifices, tests)
+    feasible, optimistic = tested.feasible, tested.optimistic
     n_feasible = int(feasible.sum())
-    if over_part == 0:
+    if tested.over_part == 0:
         notes.append(f"no configuration of machine {machine.name!r} puts the nozzle over the "
                      "part: it is out of the machine's reach")
 
@@ -321,64 +271,22 @@ def mmc_sampled(
     tol = float(settings.chord_tolerance)
     axes = [j for j, k in enumerate(space.kinds) if k != "spin"] if is_chain else [0]
     draw = orifices_of(nozzle, quad_segs=_draw_quad_segs(orifices, tol, settings.quad_segs))
-    polys, excess, covered = _sweep(space, feasible, draw, orifices, nozzle.radius, g,
-                                    tolerance=tol, axes=axes, verify=True)
-    lonely = np.flatnonzero((feasible & ~covered).ravel())
-    if len(lonely):
-        phi, t = space.pose(space.joint_vectors(lonely))
-        for o in draw:
-            for piece in o.inner_pieces:
-                polys.extend(shapely.polygons(_placed(_ring(piece), phi, t)).tolist())
-    as_built = shapely.union_all(polys) if polys else MultiPolygon()
+    as_built, excess = _swept(space, feasible, draw, orifices, nozzle, g, tol, axes)
     target_area = float(g.area)
     as_built_area = float(as_built.area)
     lost = max(0.0, target_area - as_built_area)
     hi = min(target_area, lost + 2 * excess * float(as_built.length))
-    if has_outer and optimistic.any():
-        # one joint suffices to cover every optimistic sample: prefer a prismatic one
-        order = sorted(axes, key=lambda j: (space.kinds[j] != "prismatic", -space.shape[j]))
-        axis = order[0] if order else 0
-        o_polys, _, _ = _sweep(space, optimistic, draw, draw, nozzle.radius, g,
-                               tolerance=tol, axes=[axis], verify=False, grow=slack)
-        outer = shapely.union_all(o_polys)
+    if tests.has_outer and optimistic.any():
+        outer = _outer_bound(space, optimistic, draw, nozzle, g, tol, axes)
         lo_b = max(0.0, target_area - float(shapely.intersection(outer, g).area))
-    elif has_outer or near == 0:
+    elif tests.has_outer or tested.near == 0:
         lo_b = target_area
     else:
         lo_b = 0.0
     lo_b = min(lo_b, lost)
 
-    # ---- P, components
-    samples_flat = np.flatnonzero(feasible.ravel())
-    samples = space.joint_vectors(samples_flat) if len(samples_flat) else np.zeros((0, p))
-    phi_f, t_f = space.pose(samples) if len(samples) else (np.zeros(0), np.zeros((0, 2)))
-    count, labels = _components(space, feasible)
-    lab_f = labels.ravel()[samples_flat]
-    geoms: list[BaseGeometry] = []
-    ranges: list[tuple[float, float]] = []
-    for c_id in range(count):
-        sel = lab_f == c_id
-        ranges.append((float(phi_f[sel].min()), float(phi_f[sel].max())))
-        if is_chain:
-            if n_feasible <= _MAX_COMPONENT_POINTS:
-                geoms.append(shapely.multipoints(t_f[sel]))
-        else:
-            # the lattice cells of its positions (any angle), merged into rectangles
-            mask = labels == c_id
-            if mask.ndim == 3:
-                mask = mask.any(axis=2)
-            rects = grid_rectangles(mask.T, space.values[0], space.values[1],
-                                    float(settings.resolution))
-            geoms.append(shapely.union_all(shapely.box(*rects.T)))
-    components = Components(
-        count=count,
-        geometries=tuple(geoms) if len(geoms) == count else None,
-        angle_ranges=tuple(ranges),
-    )
-    if is_chain:
-        angles = np.unique(np.round(np.mod(phi_f, 360.0), 9))
-    else:
-        angles = space.values[2] if p > 2 else np.array([0.0])
+    samples, angles, components, labels = _motion(space, feasible, is_chain,
+                                                  float(settings.resolution))
     steps = ", ".join(f"{nm} every {st:g}" for nm, st in
                       zip(space.names, space.steps, strict=True))
     notes.insert(0, (
@@ -407,3 +315,164 @@ def mmc_sampled(
                "joint_names": space.names, "joint_values": space.values, "slack": slack,
                "sweep_excess": excess, "component_labels": labels},
     )
+
+
+# --------------------------------------------------------------------------- stages
+
+
+def _check_size(space: SampleSpace, machine: Machine, n_orifices: int, settings: Settings,
+                max_samples: int) -> str:
+    """The joints' value counts, as words; ResourceError above the sample or memory limit."""
+    n = space.size
+    p = len(space.values)
+    describe = ", ".join(f"{nm}: {len(v):,} values" for nm, v in
+                         zip(space.names, space.values, strict=True))
+    memory = n * (2 + 4 + 8 * p) + _CHUNK * (16 * p + 64 * n_orifices + 64)
+    if n > max_samples or memory > settings.max_memory:
+        raise ResourceError(
+            f"the sampled engine would test {n:,} configurations of machine {machine.name!r} "
+            f"({describe}) needing about {memory / 2**20:,.0f} MiB; the limits are "
+            f"{max_samples:,} configurations and {settings.max_memory / 2**20:,.0f} MiB: use "
+            "coarser joint steps in the machine profile (or a coarser resolution / angle "
+            "step on xy and ttr machines), or narrow the joint ranges to the part"
+        )
+    return describe
+
+
+@dataclass(frozen=True, eq=False)
+class _Tests:
+    """The containment tests: ∂G's bucketed edges, the feasibility test of every orifice
+    and, when ``has_outer``, the optimistic one (the orifice shrunk by the slack)."""
+
+    edges: Edges
+    feasible: list[ContainmentTest]
+    optimistic: list[ContainmentTest]
+    has_outer: bool
+
+
+def _containment_tests(g: BaseGeometry, orifices: tuple[Orifice, ...], slack: float,
+                       notes: list[str]) -> _Tests:
+    """The tests of every orifice; a note in ``notes`` when there is no lower bound."""
+    reach_max = max(o.circumradius + math.hypot(*o.center) for o in orifices)
+    edges = boundary_edges(g, max(reach_max / 2, 1e-3))
+    feasible_tests = [containment_test(o, 0.0, closed=True) for o in orifices]
+    r_in_min = min(o.inradius for o in orifices)
+    has_outer = slack * 1.01 < r_in_min
+    opt_tests = [containment_test(o, slack, closed=False) for o in orifices] if has_outer else []
+    if has_outer and any(tt.empty for tt in opt_tests):
+        has_outer = False
+    if not has_outer:
+        notes.append(
+            f"a configuration can be {slack:.3g} mm (every nozzle point) away from the nearest "
+            f"sample, more than the nozzle's inscribed radius {r_in_min:.3g} mm: no lower "
+            "bound on the lost area (reported as 0); use finer joint steps"
+        )
+    return _Tests(edges, feasible_tests, opt_tests, has_outer)
+
+
+@dataclass(frozen=True, eq=False)
+class _Tested:
+    """The samples' verdicts on the joint grid (feasible, optimistic), how many put the
+    first orifice's centre over G, and how many bring the nozzle (grown by the slack)
+    to G's bounding box."""
+
+    feasible: np.ndarray
+    optimistic: np.ndarray
+    over_part: int
+    near: int
+
+
+def _test_samples(space: SampleSpace, machine: Machine, nozzle: Nozzle, g: BaseGeometry,
+                  orifices: tuple[Orifice, ...], tests: _Tests) -> _Tested:
+    """Every sample tested, chunk by chunk: every orifice must pass."""
+    n = space.size
+    feasible = np.zeros(n, dtype=bool)
+    optimistic = np.zeros(n, dtype=bool)
+    over_part = 0  # samples with the first orifice's centre over G
+    # samples whose nozzle, grown by the slack, reaches G's bounding box: with none, no
+    # configuration at all (sampled or not) can print anything
+    near = 0
+    minx, miny, maxx, maxy = g.bounds
+    margin = nozzle.radius + space.slack
+    edges = tests.edges
+    for flat in _chunks(space, machine, nozzle, g):
+        phi, t = space.pose(space.joint_vectors(flat))
+        near += int(np.count_nonzero((t[:, 0] >= minx - margin) & (t[:, 0] <= maxx + margin)
+                                     & (t[:, 1] >= miny - margin) & (t[:, 1] <= maxy + margin)))
+        ok = np.ones(len(flat), dtype=bool)
+        for k, (test, o) in enumerate(zip(tests.feasible, orifices, strict=True)):
+            res, n_over = run_containment_test(test, o.center, g, edges, phi, t, ok)
+            ok &= res
+            over_part += n_over if k == 0 else 0
+        feasible[flat] = ok
+        if tests.has_outer:
+            oo = np.ones(len(flat), dtype=bool)
+            for test, o in zip(tests.optimistic, orifices, strict=True):
+                oo &= run_containment_test(test, o.center, g, edges, phi, t, oo)[0]
+            optimistic[flat] = oo | ok
+    return _Tested(feasible.reshape(space.shape), optimistic.reshape(space.shape), over_part,
+                   near)
+
+
+def _swept(space: SampleSpace, feasible: np.ndarray, draw: tuple[Orifice, ...],
+           orifices: tuple[Orifice, ...], nozzle: Nozzle, g: BaseGeometry, tol: float,
+           axes: list[int]) -> tuple[BaseGeometry, float]:
+    """S ⊆ G: the checked sweeps along ``axes``, plus the footprints of the samples no kept
+    sweep covers; and the largest excess e of a kept revolute hull, mm."""
+    polys, excess, covered = sweep(space, feasible, draw, orifices, nozzle.radius, g,
+                                   tolerance=tol, axes=axes, verify=True)
+    lonely = np.flatnonzero((feasible & ~covered).ravel())
+    if len(lonely):
+        phi, t = space.pose(space.joint_vectors(lonely))
+        for o in draw:
+            for piece in o.inner_pieces:
+                polys.extend(shapely.polygons(placed(ring_coords(piece), phi, t)).tolist())
+    return (shapely.union_all(polys) if polys else MultiPolygon()), excess
+
+
+def _outer_bound(space: SampleSpace, optimistic: np.ndarray, draw: tuple[Orifice, ...],
+                 nozzle: Nozzle, g: BaseGeometry, tol: float, axes: list[int]) -> BaseGeometry:
+    """S_outer ⊇ S: the optimistic samples' footprints grown by the slack, swept."""
+    # one joint suffices to cover every optimistic sample: prefer a prismatic one
+    order = sorted(axes, key=lambda j: (space.kinds[j] != "prismatic", -space.shape[j]))
+    axis = order[0] if order else 0
+    o_polys, _, _ = sweep(space, optimistic, draw, draw, nozzle.radius, g,
+                          tolerance=tol, axes=[axis], verify=False, grow=space.slack)
+    return shapely.union_all(o_polys)
+
+
+def _motion(space: SampleSpace, feasible: np.ndarray, is_chain: bool,
+            resolution: float) -> tuple[np.ndarray, np.ndarray, Components, np.ndarray]:
+    """P: the feasible joint vectors, the angles they use, their components and labels."""
+    p = len(space.values)
+    n_feasible = int(feasible.sum())
+    samples_flat = np.flatnonzero(feasible.ravel())
+    samples = space.joint_vectors(samples_flat) if len(samples_flat) else np.zeros((0, p))
+    phi_f, t_f = space.pose(samples) if len(samples) else (np.zeros(0), np.zeros((0, 2)))
+    count, labels = _components(space, feasible)
+    lab_f = labels.ravel()[samples_flat]
+    geoms: list[BaseGeometry] = []
+    ranges: list[tuple[float, float]] = []
+    for c_id in range(count):
+        sel = lab_f == c_id
+        ranges.append((float(phi_f[sel].min()), float(phi_f[sel].max())))
+        if is_chain:
+            if n_feasible <= _MAX_COMPONENT_POINTS:
+                geoms.append(shapely.multipoints(t_f[sel]))
+        else:
+            # the lattice cells of its positions (any angle), merged into rectangles
+            mask = labels == c_id
+            if mask.ndim == 3:
+                mask = mask.any(axis=2)
+            rects = grid_rectangles(mask.T, space.values[0], space.values[1], resolution)
+            geoms.append(shapely.union_all(shapely.box(*rects.T)))
+    components = Components(
+        count=count,
+        geometries=tuple(geoms) if len(geoms) == count else None,
+        angle_ranges=tuple(ranges),
+    )
+    if is_chain:
+        angles = np.unique(np.round(np.mod(phi_f, 360.0), 9))
+    else:
+        angles = space.values[2] if p > 2 else np.array([0.0])
+    return samples, angles, components, labels

@@ -4,7 +4,7 @@ Issue #26: the exact engine (what ``auto`` picks for a round nozzle on XY)
 reported a triangle as 100 % lost, with bounds [0.1074, 100] and no
 component, while the closed form gives 0.1075 mm². Cause: a three-vertex
 ring was cut into two boundary pieces at its vertices 0 and 1, which the
-piece merger of :func:`printability.mmc._disk_offsets._split_lines` glued
+piece merger of :func:`printability.mmc._offset_bands.split_lines` glued
 back into the closed ring; GEOS fills a closed line's one-sided buffer, so
 the inner band covered all of G and P came out empty.
 
@@ -39,7 +39,8 @@ from shapes import (
 from printability.geometry import as_region
 from printability.mmc import compute_mmc
 from printability.mmc import exact as exact_module
-from printability.mmc._disk_offsets import _EMPTY, _split_lines
+from printability.mmc._offset_bands import EMPTY as _EMPTY
+from printability.mmc._offset_bands import split_lines as _split_lines
 from printability.mmc.result import MMCInternalError
 from printability.settings import Settings
 
@@ -233,7 +234,8 @@ def test_one_sided_band_never_takes_the_face_inside_a_nearly_closed_piece():
     """GEOS's single-sided buffer of a U whose ends lie closer than the offset returned the
     face its offset curve encloses (a hypothesis run found it: two unit squares touching at
     a corner beside an L, eroded by a 1.0 mm circle, lost the whole L)."""
-    from printability.mmc._disk_offsets import _side_band, erode_disk
+    from printability.mmc._disk_offsets import erode_disk
+    from printability.mmc._offset_bands import side_band as _side_band
 
     ring = Polygon([(10, 7), (10, 0), (12, 0), (12, 8), (10, 8), (10, 13), (0, 13), (0, 7)])
     g = shapely.MultiPolygon([Polygon([(0, 2), (0, 0), (2, 0), (2, 2)]),

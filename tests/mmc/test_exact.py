@@ -14,7 +14,7 @@ from printability.errors import InputError, NozzleTooLargeError
 from printability.geometry import rotation_matrix
 from printability.machine import parse_machine
 from printability.mmc import compute_mmc
-from printability.mmc._minkowski import _convex_pieces
+from printability.mmc._minkowski import convex_pieces as _convex_pieces
 from printability.mmc.exact import (
     minkowski_dilate,
     minkowski_erode,
@@ -344,7 +344,7 @@ def test_japan_coastline_circle_and_ellipse():
 
 def test_sliver_holes_are_filled_and_real_holes_kept():
     """A hole no disk of the given radius fits in is filled; a real one stays."""
-    from printability.mmc._disk_offsets import _as_multi
+    from printability.mmc._offset_bands import as_multi as _as_multi
 
     outer = [(0, 0), (10, 0), (10, 10), (0, 10)]
     sliver = [(2, 5), (8, 5 + 1e-9), (8, 5)]  # 6 mm long, a nanometre wide
