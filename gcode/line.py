@@ -122,6 +122,154 @@ def _split_eol(raw: bytes) -> tuple[bytes, bytes]:
     return raw, b""
 
 
+class _Scan:
+    """The state of :func:`parse_line` on one line's body: the segments and words so far and
+    the line's fields."""
+
+    def __init__(self, body: bytes) -> None:
+        self.body = body
+        self.segs: list[Segment] = []
+        self.words: list[Word] = []
+        self.kind = "blank"
+        self.letter: str | None = None
+        self.major: int | None = None
+        self.minor: int | None = None
+        self.line_number: int | None = None
+        self.checksum: int | None = None
+        self.checksum_ok = False
+        self.bad_column: int | None = None
+
+    def blanks(self, pos: int) -> int:
+        """Past the blanks at ``pos`` (a ``ws`` segment if any)."""
+        m = _BLANKS.match(self.body, pos)
+        if m.end() > pos:
+            self.segs.append(Segment("ws", self.body[pos : m.end()]))
+        return m.end()
+
+    def bad(self, pos: int) -> None:
+        if self.bad_column is None:
+            self.bad_column = pos
+
+    def head(self, has_comment: bool) -> tuple[int, bool]:
+        """Byte-order mark, ``N`` number and command: (where the words start, whether the
+        line has address words to read)."""
+        body = self.body
+        i = 0
+        if body.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
+            self.segs.append(Segment("bom", body[:3]))
+            i = 3
+        i = self.blanks(i)
+        m = _NWORD.match(body, i)
+        if m:
+            self.line_number = int(m.group(1))
+            self.segs.append(Segment("number", m.group(0)))
+            i = self.blanks(m.end())
+        if i >= len(body):
+            self.kind = "words" if self.line_number is not None else (
+                "comment" if has_comment else "blank")
+            return i, False
+        if body[i : i + 1] == b"*":
+            self.kind = "words"
+            return i, True
+        if not (body[i : i + 1].isalpha() and body[i] < 128):
+            self.kind = "other"
+            self.bad_column = i
+            return i, False
+        mc = _CMD.match(body, i)
+        if mc:
+            self.kind = "command"
+            self.letter = mc.group(1).decode().upper()
+            self.major = int(mc.group(2))
+            self.minor = int(mc.group(3)) if mc.group(3) is not None else None
+            self.segs.append(Segment("command", mc.group(0)))
+            return mc.end(), not (self.letter == "M" and self.major in STRING_ARG_MCODES)
+        mi = _IDENT.match(body, i)
+        if mi:
+            self.kind = "extended"
+            self.letter = body[i : i + 1].decode().upper()
+            self.segs.append(Segment("command", mi.group(0)))
+            return mi.end(), False
+        self.kind = "words"
+        return i, True
+
+    def rest(self, i: int) -> None:
+        """The rest of the body as one segment: ``bad`` on an "other" line, else free text."""
+        body = self.body
+        if i < len(body):
+            if self.kind == "other":
+                self.segs.append(Segment("bad", body[i:]))
+            else:
+                i = self.blanks(i)
+                if i < len(body):
+                    self.segs.append(Segment("text", body[i:]))
+
+    def address_words(self, i: int) -> None:
+        """The words from ``i`` to the end of the body (or its ``*`` checksum)."""
+        body = self.body
+        while i < len(body):
+            i = self.blanks(i)
+            if i >= len(body):
+                break
+            ch = body[i : i + 1]
+            if ch == b"*":
+                self.checksum_at(i)
+                break
+            if ch == b'"':
+                mq = _QUOTED.match(body, i)
+                self.segs.append(Segment("string", mq.group(0)))
+                self.words.append(Word("", None, mq.group(0)))
+                i = mq.end()
+            elif not (ch.isalpha() and body[i] < 128):
+                self.bad(i)
+                mb = _NONBLANK.match(body, i)
+                self.segs.append(Segment("bad", mb.group(0)))
+                self.words.append(Word("", None, mb.group(0), malformed=True))
+                i = mb.end()
+            else:
+                i = self.word(i, ch.decode().upper())
+
+    def checksum_at(self, i: int) -> None:
+        body = self.body
+        mk = _CHECKSUM.match(body, i)
+        if mk:
+            self.checksum = int(mk.group(1))
+            x = 0
+            for b in body[:i]:
+                x ^= b
+            self.checksum_ok = x == self.checksum
+            self.segs.append(Segment("checksum", mk.group(0)))
+        else:
+            self.bad(i)
+            self.segs.append(Segment("bad", body[i:]))
+
+    def word(self, i: int, letter: str) -> int:
+        """The word of ``letter`` at ``i``: a quoted string, a number, nothing or something
+        malformed; where it ends."""
+        body = self.body
+        if body[i + 1 : i + 2] == b'"':
+            mq = _QUOTED.match(body, i + 1)
+            text = body[i : mq.end()]
+            self.segs.append(Segment("word", text))
+            self.words.append(Word(letter, None, text))
+            return mq.end()
+        mn = _NUMWORD.match(body, i)
+        j = mn.end()
+        nxt = body[j : j + 1]
+        ok_end = nxt in (b"", b" ", b"\t", b"*") or (nxt.isalpha() and body[j] < 128)
+        ndig = len(mn.group(2)) + len(mn.group(4) or b"")
+        if j == i + 1 and ok_end:
+            self.words.append(Word(letter, None, body[i:j]))
+        elif ndig == 0 or not ok_end:
+            if not ok_end:
+                j = _NONBLANK.match(body, j).end()
+            self.bad(i)
+            self.words.append(Word(letter, None, body[i:j], malformed=True))
+        else:
+            self.words.append(Word(letter, float(body[i + 1 : j]), body[i:j]))
+        self.segs.append(Segment("word", body[i:j]))
+        return j
+
+
 def parse_line(raw: bytes) -> ParsedLine:
     """Split one raw line into a lossless token stream.
 
@@ -137,141 +285,19 @@ def parse_line(raw: bytes) -> ParsedLine:
         ``result.to_bytes() == raw`` always holds.
     """
     content, eol = _split_eol(raw)
-    segs: list[Segment] = []
-    words: list[Word] = []
     m = _CONTROL.search(content)
-    control_column = m.start() if m else None
     semi = content.find(b";")
     body = content if semi < 0 else content[:semi]
     comment = None if semi < 0 else content[semi:]
     stripped = body.rstrip(b" \t")
     trailing = body[len(stripped) :]
-    body = stripped
-
-    kind = "blank"
-    letter = None
-    major = minor = None
-    line_number = None
-    checksum = None
-    checksum_ok = False
-    bad_column = None
-
-    def ws_at(pos: int) -> int:
-        m = _BLANKS.match(body, pos)
-        if m.end() > pos:
-            segs.append(Segment("ws", body[pos : m.end()]))
-        return m.end()
-
-    i = 0
-    if body.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte-order mark
-        segs.append(Segment("bom", body[:3]))
-        i = 3
-    i = ws_at(i)
-    m = _NWORD.match(body, i)
-    if m:
-        line_number = int(m.group(1))
-        segs.append(Segment("number", m.group(0)))
-        i = ws_at(m.end())
-    parse_words = True
-    if i >= len(body):
-        kind = "words" if line_number is not None else ("comment" if comment else "blank")
-        parse_words = False
-    elif body[i : i + 1] == b"*":
-        kind = "words"
-    elif body[i : i + 1].isalpha() and body[i] < 128:
-        mc = _CMD.match(body, i)
-        mi = _IDENT.match(body, i)
-        if mc:
-            kind = "command"
-            letter = mc.group(1).decode().upper()
-            major = int(mc.group(2))
-            minor = int(mc.group(3)) if mc.group(3) is not None else None
-            segs.append(Segment("command", mc.group(0)))
-            i = mc.end()
-            if letter == "M" and major in STRING_ARG_MCODES:
-                parse_words = False
-        elif mi:
-            kind = "extended"
-            letter = body[i : i + 1].decode().upper()
-            segs.append(Segment("command", mi.group(0)))
-            i = mi.end()
-            parse_words = False
-        else:
-            kind = "words"
+    scan = _Scan(stripped)
+    i, parse_words = scan.head(bool(comment))
+    if parse_words:
+        scan.address_words(i)
     else:
-        kind = "other"
-        bad_column = i
-        parse_words = False
-
-    if not parse_words:
-        if i < len(body):
-            if kind == "other":
-                segs.append(Segment("bad", body[i:]))
-            else:
-                i = ws_at(i)
-                if i < len(body):
-                    segs.append(Segment("text", body[i:]))
-        i = len(body)
-
-    while i < len(body):
-        i = ws_at(i)
-        if i >= len(body):
-            break
-        ch = body[i : i + 1]
-        if ch == b"*":
-            mk = _CHECKSUM.match(body, i)
-            if mk:
-                checksum = int(mk.group(1))
-                x = 0
-                for b in body[:i]:
-                    x ^= b
-                checksum_ok = x == checksum
-                segs.append(Segment("checksum", mk.group(0)))
-            else:
-                if bad_column is None:
-                    bad_column = i
-                segs.append(Segment("bad", body[i:]))
-            break
-        if ch == b'"':
-            mq = _QUOTED.match(body, i)
-            segs.append(Segment("string", mq.group(0)))
-            words.append(Word("", None, mq.group(0)))
-            i = mq.end()
-            continue
-        if not (ch.isalpha() and body[i] < 128):
-            if bad_column is None:
-                bad_column = i
-            mb = _NONBLANK.match(body, i)
-            segs.append(Segment("bad", mb.group(0)))
-            words.append(Word("", None, mb.group(0), malformed=True))
-            i = mb.end()
-            continue
-        L = ch.decode().upper()
-        if body[i + 1 : i + 2] == b'"':
-            mq = _QUOTED.match(body, i + 1)
-            text = body[i : mq.end()]
-            segs.append(Segment("word", text))
-            words.append(Word(L, None, text))
-            i = mq.end()
-            continue
-        mn = _NUMWORD.match(body, i)
-        j = mn.end()
-        nxt = body[j : j + 1]
-        ok_end = nxt in (b"", b" ", b"\t", b"*") or (nxt.isalpha() and body[j] < 128)
-        ndig = len(mn.group(2)) + len(mn.group(4) or b"")
-        if j == i + 1 and ok_end:
-            words.append(Word(L, None, body[i:j]))
-        elif ndig == 0 or not ok_end:
-            if not ok_end:
-                j = _NONBLANK.match(body, j).end()
-            if bad_column is None:
-                bad_column = i
-            words.append(Word(L, None, body[i:j], malformed=True))
-        else:
-            words.append(Word(L, float(body[i + 1 : j]), body[i:j]))
-        segs.append(Segment("word", body[i:j]))
-        i = j
-
+        scan.rest(i)
+    segs = scan.segs
     if trailing:
         segs.append(Segment("ws", trailing))
     if comment is not None:
@@ -280,17 +306,17 @@ def parse_line(raw: bytes) -> ParsedLine:
         segs.append(Segment("eol", eol))
     return ParsedLine(
         segments=tuple(segs),
-        kind=kind,
-        letter=letter,
-        major=major,
-        minor=minor,
-        line_number=line_number,
-        checksum=checksum,
-        checksum_ok=checksum_ok,
-        words=tuple(words),
+        kind=scan.kind,
+        letter=scan.letter,
+        major=scan.major,
+        minor=scan.minor,
+        line_number=scan.line_number,
+        checksum=scan.checksum,
+        checksum_ok=scan.checksum_ok,
+        words=tuple(scan.words),
         comment=comment,
-        bad_column=bad_column,
-        control_column=control_column,
+        bad_column=scan.bad_column,
+        control_column=m.start() if m else None,
     )
 
 

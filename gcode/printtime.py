@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -287,9 +288,45 @@ def _segments(cols, kinds, res):  # pragma: no cover
     return seg[:k]
 
 
+# The helpers called per planned move allocate nothing, so they skip reference counting: a
+# count on each of the queue's arrays at every call would cost more than their work and keep
+# LLVM from inlining them.
+_helper = numba.njit(cache=True, nogil=True, _nrt=False)
+
+
+class _Queue(NamedTuple):
+    """The look-ahead queue: one row per planned move (Klipper's ``Move`` fields)."""
+
+    move_d: np.ndarray  # length, mm (or the largest extra-axis delta)
+    accel: np.ndarray
+    max_cruise_v2: np.ndarray
+    delta_v2: np.ndarray
+    mcr_delta_v2: np.ndarray  # delta_v2 under minimum_cruise_ratio
+    max_start_v2: np.ndarray
+    max_mcr_start_v2: np.ndarray
+    jd: np.ndarray  # junction deviation (from square_corner_velocity), mm
+    rx: np.ndarray  # axis ratios (delta / length)
+    ry: np.ndarray
+    rz: np.ndarray
+    re: np.ndarray
+    rc: np.ndarray
+    kin: np.ndarray  # has XYZ motion
+    stop_after: np.ndarray  # the queue is flushed (a full stop) after it
+
+
+# The planner's current limits and running totals (a float64 array the helpers update).
+_CUR_V, _CUR_A, _CUR_SCV, _CUR_MCR, _CUR_DWELL, _CUR_ROT_ONLY, _CUR_ROT_TIME = range(7)
+
+
 @numba.njit(cache=True, nogil=True)
-def _flush(q0, q1, move_d, accel, max_cruise_v2, delta_v2, mcr_delta_v2, max_start_v2,
-           max_mcr_start_v2):  # pragma: no cover
+def _new_queue(n):  # pragma: no cover
+    return _Queue(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
+                  np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
+                  np.zeros(n), np.zeros(n, np.bool_), np.zeros(n, np.bool_))
+
+
+@numba.njit(cache=True, nogil=True)
+def _flush(q, q0, q1):  # pragma: no cover
     """LookAheadQueue.flush(lazy=False) over moves q0..q1-1: their total duration."""
     m = q1 - q0
     start_v2 = np.empty(m)
@@ -301,15 +338,15 @@ def _flush(q0, q1, move_d, accel, max_cruise_v2, delta_v2, mcr_delta_v2, max_sta
     pending = 0
     for j in range(m - 1, -1, -1):
         i = q0 + j
-        reachable = next_start_v2 + delta_v2[i]
-        sv2 = min(max_start_v2[i], reachable)
+        reachable = next_start_v2 + q.delta_v2[i]
+        sv2 = min(q.max_start_v2[i], reachable)
         pending += 1
-        reach_mcr = next_mcr_start_v2 + mcr_delta_v2[i]
-        mcr_sv2 = min(max_mcr_start_v2[i], reach_mcr)
+        reach_mcr = next_mcr_start_v2 + q.mcr_delta_v2[i]
+        mcr_sv2 = min(q.max_mcr_start_v2[i], reach_mcr)
         if mcr_sv2 < reach_mcr:
-            if mcr_sv2 + mcr_delta_v2[i] > next_mcr_start_v2 or pending > 1:
+            if mcr_sv2 + q.mcr_delta_v2[i] > next_mcr_start_v2 or pending > 1:
                 peak_cruise_v2 = (mcr_sv2 + reach_mcr) * 0.5
-            cruise_v2[j] = min((sv2 + reachable) * 0.5, max_cruise_v2[i], peak_cruise_v2)
+            cruise_v2[j] = min((sv2 + reachable) * 0.5, q.max_cruise_v2[i], peak_cruise_v2)
             pending = 0
         start_v2[j] = sv2
         next_v2[j] = next_start_v2
@@ -324,10 +361,10 @@ def _flush(q0, q1, move_d, accel, max_cruise_v2, delta_v2, mcr_delta_v2, max_sta
             cv2 = min(prev_cruise, start_v2[j])
         s2 = min(start_v2[j], cv2)
         e2 = min(next_v2[j], cv2)
-        half_inv = 0.5 / accel[i]
+        half_inv = 0.5 / q.accel[i]
         accel_d = (cv2 - s2) * half_inv
         decel_d = (cv2 - e2) * half_inv
-        cruise_d = move_d[i] - accel_d - decel_d
+        cruise_d = q.move_d[i] - accel_d - decel_d
         sv = math.sqrt(s2)
         cv = math.sqrt(cv2)
         ev = math.sqrt(e2)
@@ -339,150 +376,158 @@ def _flush(q0, q1, move_d, accel, max_cruise_v2, delta_v2, mcr_delta_v2, max_sta
     return total
 
 
+@_helper
+def _apply_events(events, e, mi, cur, q, prev):  # pragma: no cover
+    """Apply the commands before move ``mi`` from event ``e`` on (limits, stops, dwells);
+    the next event."""
+    ev_at, ev_code, ev_val = events
+    while e < len(ev_at) and ev_at[e] <= mi:
+        code = ev_code[e]
+        v = ev_val[e]
+        if code == _SET_ACCEL:
+            cur[_CUR_A] = v
+        elif code == _SET_VELOCITY:
+            cur[_CUR_V] = v
+        elif code == _SET_SCV:
+            cur[_CUR_SCV] = v
+        elif code == _SET_MCR:
+            cur[_CUR_MCR] = v
+        elif code == _DWELL or code == _STOP:
+            if prev >= 0:
+                q.stop_after[prev] = True
+            if code == _DWELL:
+                cur[_CUR_DWELL] += v
+        e += 1
+    return e
+
+
+@_helper
+def _add_move(q, p, seg, k, cur, lim, rot):  # pragma: no cover
+    """Put segment ``k`` in the queue as move ``p`` with its limits (Klipper's ``Move``);
+    False for a segment that does not move (Klipper plans nothing)."""
+    dx, dy, dz, de, dc, speed = seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3], seg[k, 4], \
+        seg[k, 5]
+    max_a = cur[_CUR_A]
+    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+    a = max_a
+    if d < 1e-9:
+        d = max(abs(de), abs(dc))
+        if d == 0.0:
+            return False
+        is_kin = False
+        a = 99999999.9
+        v = speed
+        dx = dy = dz = 0.0
+    else:
+        is_kin = True
+        v = min(speed, cur[_CUR_V])
+    inv = 1.0 / d
+    cv2 = v * v
+    # kinematics: Z
+    if is_kin and dz != 0.0:
+        zr = d / abs(dz)
+        lv = lim[4] * zr
+        if lv * lv < cv2:
+            cv2 = lv * lv
+        a = min(a, lim[5] * zr)
+    # the extruder: E-only and retraction moves at its limits
+    if de != 0.0 and ((dx == 0.0 and dy == 0.0) or de < 0.0):
+        er = 1.0 / abs(de * inv)
+        lv = lim[6] * er
+        if lv * lv < cv2:
+            cv2 = lv * lv
+        a = min(a, lim[7] * er)
+    # the rotary axis
+    if dc != 0.0:
+        cr = d / abs(dc)
+        lv = rot[0] * cr
+        if lv * lv < cv2:
+            cv2 = lv * lv
+        a = min(a, rot[1] * cr)
+    q.move_d[p] = d
+    q.accel[p] = a
+    q.max_cruise_v2[p] = cv2
+    q.delta_v2[p] = 2.0 * d * a
+    q.mcr_delta_v2[p] = min(2.0 * d * max_a * (1.0 - cur[_CUR_MCR]), q.delta_v2[p])
+    q.jd[p] = cur[_CUR_SCV] * cur[_CUR_SCV] * (math.sqrt(2.0) - 1.0) / max_a
+    q.rx[p] = dx * inv
+    q.ry[p] = dy * inv
+    q.rz[p] = dz * inv
+    q.re[p] = de * inv
+    q.rc[p] = dc * inv
+    q.kin[p] = is_kin
+    if not is_kin and dc != 0.0 and de == 0.0:
+        cur[_CUR_ROT_ONLY] += 1.0
+        v = math.sqrt(cv2)
+        cur[_CUR_ROT_TIME] += 2.0 * math.sqrt(d / a) if v * v / a >= d else d / v + v / a
+    return True
+
+
+@_helper
+def _junction(q, p, prev, lim, rot):  # pragma: no cover
+    """The junction of move ``p`` with the previous planned move (none across a stop):
+    its largest start speeds, or a stop after ``prev``."""
+    if prev >= 0 and not q.stop_after[prev] and q.kin[p] and q.kin[prev]:
+        ms = min(q.max_cruise_v2[p], q.max_cruise_v2[prev],
+                 q.max_start_v2[prev] + q.delta_v2[prev])
+        dr = q.re[p] - q.re[prev]
+        if dr != 0.0:
+            ms = min(ms, (lim[8] / abs(dr)) ** 2)
+        dr = q.rc[p] - q.rc[prev]
+        if dr != 0.0:
+            ms = min(ms, (rot[2] / abs(dr)) ** 2)
+        cos_t = -(q.rx[p] * q.rx[prev] + q.ry[p] * q.ry[prev] + q.rz[p] * q.rz[prev])
+        sin_d2 = math.sqrt(max(0.5 * (1.0 - cos_t), 0.0))
+        cos_d2 = math.sqrt(max(0.5 * (1.0 + cos_t), 0.0))
+        om = 1.0 - sin_d2
+        if om > 0.0 and cos_d2 > 0.0:
+            r_jd = sin_d2 / om
+            qt = 0.25 * sin_d2 / cos_d2
+            ms = min(ms, r_jd * q.jd[p] * q.accel[p], r_jd * q.jd[prev] * q.accel[prev],
+                     q.delta_v2[p] * qt, q.delta_v2[prev] * qt)
+        q.max_start_v2[p] = ms
+        q.max_mcr_start_v2[p] = min(ms, q.max_mcr_start_v2[prev] + q.mcr_delta_v2[prev])
+    elif prev >= 0:
+        q.stop_after[prev] = True
+
+
 @numba.njit(cache=True, nogil=True)
 def _plan(cols, kinds, events, lim, rot):  # pragma: no cover
     """Totals: (motion s, dwell s, moves, stops, rotation-only moves, their time s)."""
     ev_at, ev_code, ev_val = events
     seg = _segments(cols, kinds, lim[9])
     n = seg.shape[0]
-    max_v = lim[0]
-    max_a = lim[1]
-    scv = lim[2]
-    mcr = lim[3]
-    move_d = np.zeros(n)
-    accel = np.zeros(n)
-    max_cruise_v2 = np.zeros(n)
-    delta_v2 = np.zeros(n)
-    mcr_delta_v2 = np.zeros(n)
-    max_start_v2 = np.zeros(n)
-    max_mcr_start_v2 = np.zeros(n)
-    jd = np.zeros(n)
-    rx = np.zeros(n)
-    ry = np.zeros(n)
-    rz = np.zeros(n)
-    re_ = np.zeros(n)
-    rc = np.zeros(n)
-    kin = np.zeros(n, np.bool_)
-    stop_after = np.zeros(n, np.bool_)
-    dwell = 0.0
+    q = _new_queue(n)
+    cur = np.zeros(7)
+    cur[_CUR_V] = lim[0]
+    cur[_CUR_A] = lim[1]
+    cur[_CUR_SCV] = lim[2]
+    cur[_CUR_MCR] = lim[3]
     e = 0
-    n_ev = len(ev_at)
     prev = -1  # the last planned move
-    rot_only = 0
-    rot_time = 0.0
     planned = 0
     for k in range(n):
         mi = int(seg[k, 6])
         # the commands before this move's line change the limits, stop, dwell
-        while e < n_ev and ev_at[e] <= mi and (k == 0 or int(seg[k - 1, 6]) < mi):
-            code = ev_code[e]
-            v = ev_val[e]
-            if code == 1:
-                max_a = v
-            elif code == 2:
-                max_v = v
-            elif code == 3:
-                scv = v
-            elif code == 4:
-                mcr = v
-            elif code == 5 or code == 6:
-                if prev >= 0:
-                    stop_after[prev] = True
-                if code == 5:
-                    dwell += v
-            e += 1
-        dx, dy, dz, de, dc, speed = seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3], seg[k, 4], \
-            seg[k, 5]
-        d = math.sqrt(dx * dx + dy * dy + dz * dz)
-        a = max_a
-        if d < 1e-9:
-            d = max(abs(de), abs(dc))
-            if d == 0.0:
-                continue  # no motion: Klipper plans nothing
-            is_kin = False
-            a = 99999999.9
-            v = speed
-            dx = dy = dz = 0.0
-        else:
-            is_kin = True
-            v = min(speed, max_v)
-        inv = 1.0 / d
-        cv2 = v * v
-        # kinematics: Z
-        if is_kin and dz != 0.0:
-            zr = d / abs(dz)
-            lv = lim[4] * zr
-            if lv * lv < cv2:
-                cv2 = lv * lv
-            a = min(a, lim[5] * zr)
-        # the extruder: E-only and retraction moves at its limits
-        if de != 0.0 and ((dx == 0.0 and dy == 0.0) or de < 0.0):
-            er = 1.0 / abs(de * inv)
-            lv = lim[6] * er
-            if lv * lv < cv2:
-                cv2 = lv * lv
-            a = min(a, lim[7] * er)
-        # the rotary axis
-        if dc != 0.0:
-            cr = d / abs(dc)
-            lv = rot[0] * cr
-            if lv * lv < cv2:
-                cv2 = lv * lv
-            a = min(a, rot[1] * cr)
-        p = planned
-        move_d[p] = d
-        accel[p] = a
-        max_cruise_v2[p] = cv2
-        delta_v2[p] = 2.0 * d * a
-        mcr_delta_v2[p] = min(2.0 * d * max_a * (1.0 - mcr), delta_v2[p])
-        jd[p] = scv * scv * (math.sqrt(2.0) - 1.0) / max_a
-        rx[p] = dx * inv
-        ry[p] = dy * inv
-        rz[p] = dz * inv
-        re_[p] = de * inv
-        rc[p] = dc * inv
-        kin[p] = is_kin
-        if not is_kin and dc != 0.0 and de == 0.0:
-            rot_only += 1
-            v = math.sqrt(cv2)
-            rot_time += 2.0 * math.sqrt(d / a) if v * v / a >= d else d / v + v / a
-        # junction with the previous planned move (none across a stop)
-        if prev >= 0 and not stop_after[prev] and is_kin and kin[prev]:
-            ms = min(cv2, max_cruise_v2[prev], max_start_v2[prev] + delta_v2[prev])
-            dr = re_[p] - re_[prev]
-            if dr != 0.0:
-                ms = min(ms, (lim[8] / abs(dr)) ** 2)
-            dr = rc[p] - rc[prev]
-            if dr != 0.0:
-                ms = min(ms, (rot[2] / abs(dr)) ** 2)
-            cos_t = -(rx[p] * rx[prev] + ry[p] * ry[prev] + rz[p] * rz[prev])
-            sin_d2 = math.sqrt(max(0.5 * (1.0 - cos_t), 0.0))
-            cos_d2 = math.sqrt(max(0.5 * (1.0 + cos_t), 0.0))
-            om = 1.0 - sin_d2
-            if om > 0.0 and cos_d2 > 0.0:
-                r_jd = sin_d2 / om
-                qt = 0.25 * sin_d2 / cos_d2
-                ms = min(ms, r_jd * jd[p] * a, r_jd * jd[prev] * accel[prev],
-                         delta_v2[p] * qt, delta_v2[prev] * qt)
-            max_start_v2[p] = ms
-            max_mcr_start_v2[p] = min(ms, max_mcr_start_v2[prev] + mcr_delta_v2[prev])
-        elif prev >= 0:
-            stop_after[prev] = True
-        prev = p
-        planned += 1
-    while e < n_ev:  # after the last move: only dwells count
-        if ev_code[e] == 5:
-            dwell += ev_val[e]
+        if k == 0 or int(seg[k - 1, 6]) < mi:
+            e = _apply_events(events, e, mi, cur, q, prev)
+        if _add_move(q, planned, seg, k, cur, lim, rot):
+            _junction(q, planned, prev, lim, rot)
+            prev = planned
+            planned += 1
+    while e < len(ev_at):  # after the last move: only dwells count
+        if ev_code[e] == _DWELL:
+            cur[_CUR_DWELL] += ev_val[e]
         e += 1
     # flush the queue at every stop
     total = 0.0
     stops = 0
     q0 = 0
     for p in range(planned):
-        if kin[p] and max_start_v2[p] == 0.0:
+        if q.kin[p] and q.max_start_v2[p] == 0.0:
             stops += 1
-        if stop_after[p] or p == planned - 1:
-            total += _flush(q0, p + 1, move_d, accel, max_cruise_v2, delta_v2, mcr_delta_v2,
-                            max_start_v2, max_mcr_start_v2)
+        if q.stop_after[p] or p == planned - 1:
+            total += _flush(q, q0, p + 1)
             q0 = p + 1
-    return np.array([total, dwell, float(planned), float(stops), float(rot_only), rot_time])
+    return np.array([total, cur[_CUR_DWELL], float(planned), float(stops), cur[_CUR_ROT_ONLY],
+                     cur[_CUR_ROT_TIME]])

@@ -13,7 +13,7 @@ What they must reproduce exactly:
 * Reading numbers: ``float()`` of a slicer's word. :func:`parse_number` reads
   at most 15 significant digits and 22 decimals, where mantissa / 10^k is
   one correctly rounded division; it declines longer words.
-* Lines: :data:`gcode.writer._SIMPLE_MOVE` (the common slicer shape), by
+* Lines: :data:`gcode.edit.SIMPLE_MOVE` (the common slicer shape), by
   :func:`simple_span`; the regular expression cannot backtrack into a match
   there (a word ends at a blank, ``;`` or the end), so one greedy pass agrees
   with it.

@@ -18,9 +18,10 @@ from gcode_samples import GCODE_SAMPLES
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gcode.edit import edit_tokens as _edit_tokens
 from gcode.line import parse_line
 from gcode.rotary import bead_area
-from gcode.writer import _edit_tokens, edit_line, simple_move_words
+from gcode.writer import edit_line, simple_move_words
 from printability.nozzle import parse_nozzle
 from printability.rewrite import e_scale, e_scales, planned_turns
 
@@ -140,7 +141,7 @@ def test_vector_planned_turn(angles):
 
 
 def _span(raw: bytes) -> tuple[int, int]:
-    from gcode.writer import _SIMPLE_MOVE
+    from gcode.edit import SIMPLE_MOVE as _SIMPLE_MOVE
 
     m = _SIMPLE_MOVE.match(raw)
     return m.span(1) if m is not None else (-1, -1)
