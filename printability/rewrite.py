@@ -20,9 +20,6 @@ reference. Both read the moves :func:`~printability._rewrite_events.scan_events`
 
 from __future__ import annotations
 
-import numpy as np
-
-from gcode.writer import WriterOptions
 from printability._rewrite_events import (
     ChordPlan,
     RewriteOutput,
@@ -36,36 +33,37 @@ from printability._rewrite_events import (
     scan_events,
 )
 from printability._rewrite_reference import rewrite_reference
-from printability.nozzle import Nozzle
 
 __all__ = ["ChordPlan", "RewriteOutput", "SlicerFile", "WriteSettings", "e_scale", "e_scales",
            "eol_of", "first_command_line", "planned_turns", "rewrite", "rewrite_reference"]
 
 
-def rewrite(g, data, moves, seg, seg_move, seg_angle, seg_fold, seg_width_laid, seg_pieces,
-            widths, heights, wopts: WriterOptions, turns: bool, e_policy: str,
-            nozzle: Nozzle, *, piece_rows: tuple | None = None,
-            piece_fold: np.ndarray | None = None) -> tuple[RewriteOutput, dict[int, int]]:
+def rewrite(src: SlicerFile, plan: ChordPlan,
+            settings: WriteSettings) -> tuple[RewriteOutput, dict[int, int]]:
     """Copy the file, rewriting the part extrusions that need it.
 
     The compiled pass of :mod:`printability._rewrite_kernel` writes the bytes
     :func:`rewrite_reference` writes; what it declines (numbers or lines outside
-    the range where it is exact, see there) goes to the reference. ``piece_rows`` are the
-    pieces of ``seg_pieces`` as arrays ``(chord, t0, t1, angle)`` by chord, when known;
-    ``piece_fold`` per such row True where the turn into the piece is made during it
-    (:attr:`~printability.motion.orientation.Plan.piece_fold`, in the rows' order). The
-    arguments are those of the records :class:`SlicerFile` (``data``, ``g``, ``moves``),
-    :class:`ChordPlan` (the ``seg…`` columns, ``widths``, ``heights``, the pieces) and
-    :class:`WriteSettings` (``wopts``, ``turns``, ``e_policy``, ``nozzle``).
+    the range where it is exact, see there) goes to the reference.
 
-    Returns the output and the rotary words per layer.
+    Parameters
+    ----------
+    src
+        The slicer's file: its bytes, its parse and its moves.
+    plan
+        Per chord: the move, the angle, the fold, the width laid and planned, the pieces
+        of split moves (``piece_rows``: arrays ``(chord, t0, t1, angle)`` by chord, when
+        known; ``piece_fold`` per such row True where the turn into the piece is made
+        during it, :attr:`~printability.motion.orientation.Plan.piece_fold`).
+    settings
+        The writer's options, whether the nozzle turns, the E policy and the nozzle.
+
+    Returns
+    -------
+    The output and the rotary words per layer.
     """
     from printability import _rewrite_kernel
 
-    src = SlicerFile(data, g, moves)
-    plan = ChordPlan(seg, seg_move, seg_angle, seg_fold, seg_width_laid, widths, seg_pieces,
-                     heights, piece_rows, piece_fold)
-    settings = WriteSettings(wopts, turns, e_policy, nozzle)
     ev = scan_events(src, plan, settings)
     done = _rewrite_kernel.rewrite_compiled(src, plan, settings, ev) if ev.ev_line.size \
         else None

@@ -19,6 +19,7 @@ Coordinates and lengths in mm; the polygons' layout is :mod:`printability.motion
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -35,29 +36,33 @@ _guard_kernel_caches()  # the cache check runs before a kernel here loads
 __all__ = ["_boundary", "_clip", "_clip_windows", "_corner_cosines", "_green", "_window"]
 
 
-@numba.njit(cache=True, nogil=True)
-def _clip(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny):  # pragma: no cover
-    """The parameter interval of [p, q] inside the half-planes ``a:b``, each moved out by
-    ``margin`` plus ``turn`` × (1 − cos) of its angle to the edge's normal (nx, ny)
-    (Liang–Barsky); empty when t1 <= t0."""
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _clip(edge, planes, a, b, slack):  # pragma: no cover
+    """The parameter interval of the edge ``(px, py, qx, qy)`` inside the half-planes ``a:b``
+    of ``planes`` (a :class:`~printability.motion.records.HalfPlanes`), each moved out by
+    ``slack = (margin, turn, nx, ny)``: ``margin`` plus ``turn`` × (1 − cos) of its angle to
+    the edge's normal (nx, ny) (Liang–Barsky); empty when t1 <= t0."""
+    px, py, qx, qy = edge
     t0 = 0.0
     t1 = 1.0
-    dx = qx - px
-    dy = qy - py
+    d = (qx - px, qy - py)
     for j in range(a, b):
-        t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
+        t0, t1 = _bound(planes, j, (px, py), d, slack, t0, t1)
         if t1 <= t0:
             return 1.0, 0.0
     return t0, t1
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1):  # pragma: no cover
+def _bound(planes, j, p, d, slack, t0, t1):  # pragma: no cover
     """One Liang–Barsky step of :func:`_clip`: [t0, t1] cut by half-plane ``j`` (an empty
-    interval, t1 <= t0, when the edge runs parallel outside it)."""
-    return _clip_step(ux[j] * dx + uy[j] * dy,
-                      h[j] + margin + turn * (1.0 - (ux[j] * nx + uy[j] * ny))
-                      - (ux[j] * px + uy[j] * py), t0, t1)
+    interval, t1 <= t0, when the edge from ``p`` along ``d`` runs parallel outside it)."""
+    ux = planes.ux
+    uy = planes.uy
+    margin, turn, nx, ny = slack
+    return _clip_step(ux[j] * d[0] + uy[j] * d[1],
+                      planes.h[j] + margin + turn * (1.0 - (ux[j] * nx + uy[j] * ny))
+                      - (ux[j] * p[0] + uy[j] * p[1]), t0, t1)
 
 
 _SAFE = 1e-8
@@ -65,13 +70,14 @@ _SAFE = 1e-8
 edge: far above the rounding of the offsets (about 1e-13 mm), far below the bead sizes."""
 
 
-@numba.njit(cache=True, nogil=True)
-def _window(x, y, ax, ay, bx, by, lx, ly, rho, k, phase, eps, vck):  # pragma: no cover
-    """The cap planes of C_j (segment [a, b], left normal ``l``, k edges per half turn, cap
-    planes ``phase`` clockwise of l, side offset ``rho``) that may not hold the point x by
-    :data:`_SAFE`: ``(r*, w)``, the cap planes ``r* - w … r* + w`` (mod 2k, counted
-    clockwise from the one just past l: :func:`_cap_plane`); ``w = -1`` none,
-    ``w >= k // 2`` all (no window saves).
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _window(x, y, beads, polys, j, eps, vck):  # pragma: no cover
+    """The cap planes of C_j (bead j of ``beads``, polygon j of ``polys``: segment [a, b],
+    left normal ``l`` its first plane's, k edges per half turn, cap planes ``phase``
+    clockwise of l, side offset ``rho``) that may not hold the point x by :data:`_SAFE`:
+    ``(r*, w)``, the cap planes ``r* - w … r* + w`` (mod 2k, counted clockwise from the one
+    just past l: :func:`_cap_plane`); ``w = -1`` none, ``w >= k // 2`` all (no window saves).
+    ``vck`` is :func:`_corner_cosines`'s row of k.
 
     With s the point of [a, b] nearest x and d = x − s, every plane l of C_j holds
     ``u_l·s ≤ h_l − ρ``, so ``u_l·x ≤ h_l − ρ + |d| cos Δ_l`` with Δ_l its angle to d:
@@ -80,9 +86,13 @@ def _window(x, y, ax, ay, bx, by, lx, ly, rho, k, phase, eps, vck):  # pragma: n
     the one m steps from it is at least (m − ½)·π/k from d, and ``vck[m - 1]`` =
     cos((m − ½)·π/k) bounds its cos Δ. (The two sides are always clipped.)
     """
-    ex, ey = _segment_offset(x, y, ax, ay, bx, by)
+    first = polys.planes.off[j]
+    lx = polys.planes.ux[first]
+    ly = polys.planes.uy[first]
+    k = polys.k[j]
+    ex, ey = _segment_offset(x, y, beads.ax[j], beads.ay[j], beads.bx[j], beads.by[j])
     d2 = ex * ex + ey * ey
-    lim = rho - eps - _SAFE
+    lim = beads.rho[j] - eps - _SAFE
     if d2 <= lim * lim:
         return 0, -1
     c = lim / math.sqrt(d2) - 1e-12  # (the slack covers the rounding of the angle)
@@ -93,7 +103,7 @@ def _window(x, y, ax, ay, bx, by, lx, ly, rho, k, phase, eps, vck):  # pragma: n
         return 0, k
     # the angle of d from l towards the segment's direction t = (ly, -lx) (clockwise)
     phi = math.atan2(ex * ly - ey * lx, ex * lx + ey * ly)
-    return math.floor((phi - phase) * k / math.pi + 0.5), w
+    return math.floor((phi - polys.phase[j]) * k / math.pi + 0.5), w
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -105,9 +115,8 @@ def _cap_plane(r, k):  # pragma: no cover
     return 1 + r if r < k else 2 + r
 
 
-@numba.njit(cache=True, nogil=True)
-def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1, j2,
-                  w2):  # pragma: no cover
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _clip_windows(edge, planes, a, b, slack, win1, win2):  # pragma: no cover
     """:func:`_clip`'s interval over the half-planes ``a:b`` of C_j: its two sides and the
     cap planes in the two ends' windows ``(r, w)`` (:func:`_window`; all of them when
     either is ``w >= k // 2``).
@@ -123,15 +132,18 @@ def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1,
     arc that spans both, each plane once: the two ends of a short edge mostly face the
     same few planes.
     """
+    j1, w1 = win1
+    j2, w2 = win2
     k = (b - a - 2) // 2
     if w1 >= k // 2 or w2 >= k // 2:
-        return _clip(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny)
+        return _clip(edge, planes, a, b, slack)
+    px, py, qx, qy = edge
+    p = (px, py)
+    d = (qx - px, qy - py)
     t0 = 0.0
     t1 = 1.0
-    dx = qx - px
-    dy = qy - py
     for j in (a, a + k + 1):  # the sides
-        t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
+        t0, t1 = _bound(planes, j, p, d, slack, t0, t1)
         if t1 <= t0:
             return 1.0, 0.0
     if w1 >= 0 and w2 >= 0:
@@ -142,7 +154,7 @@ def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1,
         if hi - lo <= 2 * (w1 + w2) + 1:
             for m in range(lo, hi + 1):
                 j = a + _cap_plane(j1 + m, k)
-                t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
+                t0, t1 = _bound(planes, j, p, d, slack, t0, t1)
                 if t1 <= t0:
                     return 1.0, 0.0
             return t0, t1
@@ -152,7 +164,7 @@ def _clip_windows(px, py, qx, qy, ux, uy, h, a, b, margin, turn, nx, ny, j1, w1,
         for mm in range(2 * w + 1):  # the nearest plane first, then ±1, ±2…
             m = (mm + 1) // 2 if mm % 2 else -(mm // 2)
             j = a + _cap_plane(js + m, k)
-            t0, t1 = _bound(ux, uy, h, j, px, py, dx, dy, margin, turn, nx, ny, t0, t1)
+            t0, t1 = _bound(planes, j, p, d, slack, t0, t1)
             if t1 <= t0:
                 return 1.0, 0.0
     return t0, t1
@@ -173,149 +185,202 @@ def _corner_cosines(k):  # pragma: no cover
     return vc
 
 
+class _Memo(NamedTuple):
+    """The working arrays of :func:`_boundary`: polygon i's neighbours (``near``, ``mark[j]
+    == i`` once j is listed), per slot of ``near`` the corner whose window against that
+    neighbour is kept (``w_at``, an index into the corners) and the window (``w_j``,
+    ``w_w``), and an edge's covered intervals (``t_lo``, ``t_hi``, by start)."""
+
+    mark: np.ndarray
+    near: np.ndarray
+    w_at: np.ndarray
+    w_j: np.ndarray
+    w_w: np.ndarray
+    t_lo: np.ndarray
+    t_hi: np.ndarray
+
+
 @numba.njit(cache=True, nogil=True)
-def _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, k, phase, start, items, x0, y0,
-              cell, nx, ny, eps, lo, hi):  # pragma: no cover
+def _boundary(beads, polys, cells, eps, lo, hi):  # pragma: no cover
     """The uncovered pieces of the edges of polygons ``lo … hi - 1`` (the tie rule of the
     module docs), in order: what each polygon keeps depends on the polygons only. Rows
-    (x0, y0, x1, y1, how far the piece's line stands beyond ρ from its bead's path)."""
-    n = len(ax)
-    mark = np.full(n, -1, np.int64)
-    near = np.empty(n, np.int64)
-    t_lo = np.empty(n + 2)
-    t_hi = np.empty(n + 2)
+    (x0, y0, x1, y1, how far the piece's line stands beyond ρ from its bead's path).
+
+    ``beads`` the :class:`~printability.motion.records.Beads`, ``polys`` their
+    :class:`~printability.motion.records.BeadPolygons`, ``cells`` the
+    :class:`~printability.motion.records.CellGrid` listing the polygons.
+    """
+    n = len(beads.ax)
+    memo = _Memo(np.full(n, -1, np.int64), np.empty(n, np.int64), np.full(n, -1, np.int64),
+                 np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n + 2),
+                 np.empty(n + 2))
     cap = max(1024, 8 * (hi - lo))
     out = np.empty((cap, 5))
-    vc = _corner_cosines(k)
-    # per slot of ``near``: the corner (index into vx, vy) whose window against that
-    # neighbour is kept, and the window
-    w_at = np.full(n, -1, np.int64)
-    w_j = np.empty(n, np.int64)
-    w_w = np.empty(n, np.int64)
+    vc = _corner_cosines(polys.k)
+    off = polys.planes.off
     n_out = 0
     for i in range(lo, hi):
-        # the polygons that may overlap this one: the neighbours along the path first
-        # (they cover most of a cap, ending the scans below early)
-        m = 0
-        big_i = (box[i, 2] - box[i, 0] - abs(bx[i] - ax[i])) * 0.5
-        for j in range(i - 1, i + 2, 2):
-            if 0 <= j < n:
+        m = _neighbours(i, beads, polys.box, cells, memo)
+        both = 0 < i < n - 1  # near[0] = i - 1, near[1] = i + 1
+        for e in range(off[i + 1] - off[i]):
+            # the cap at b (edges 1 … k) is mostly inside the next chord's polygon
+            ahead = both and 0 < e <= polys.k[i]
+            n_iv = _covered(i, e, ahead, m, beads, polys, vc, eps, memo)
+            if n_iv >= 0:
+                if n_out + n_iv + 1 > len(out):  # room for every piece the edge may leave
+                    grown = np.empty((2 * len(out) + n_iv + 1, 5))
+                    grown[:n_out] = out[:n_out]
+                    out = grown
+                n_out = _emit(out, n_out, _edge_row(i, e, beads, polys), memo, n_iv)
+    return out[:n_out]
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _neighbours(i, beads, box, cells, memo):  # pragma: no cover
+    """The polygons that may overlap polygon i, into ``memo.near``, and their count: the
+    neighbours along the path first (they cover most of a cap, ending the scans early),
+    then those listed in the cells of i's box whose capsules come near i's."""
+    ax, ay, bx, by, _ = beads
+    start, items, x0, y0, cell, nx, ny = cells
+    mark = memo.mark
+    near = memo.near
+    n = len(ax)
+    m = 0
+    big_i = (box[i, 2] - box[i, 0] - abs(bx[i] - ax[i])) * 0.5
+    for j in range(i - 1, i + 2, 2):
+        if 0 <= j < n:
+            mark[j] = i
+            near[m] = j
+            m += 1
+    for iy in range(_cell(box[i, 1], y0, cell, ny), _cell(box[i, 3], y0, cell, ny) + 1):
+        for ix in range(_cell(box[i, 0], x0, cell, nx), _cell(box[i, 2], x0, cell, nx) + 1):
+            c = iy * nx + ix
+            for q in range(start[c], start[c + 1]):
+                j = items[q]
+                if j == i or mark[j] == i:
+                    continue
                 mark[j] = i
+                if box[j, 0] > box[i, 2] or box[j, 2] < box[i, 0] \
+                        or box[j, 1] > box[i, 3] or box[j, 3] < box[i, 1]:
+                    continue
+                big_j = (box[j, 2] - box[j, 0] - abs(bx[j] - ax[j])) * 0.5
+                if _segments2(ax[i], ay[i], bx[i], by[i], ax[j], ay[j], bx[j],
+                              by[j]) >= (big_i + big_j) ** 2:
+                    continue
                 near[m] = j
                 m += 1
-        both = m == 2  # near[0] = i - 1, near[1] = i + 1
-        for iy in range(_cell(box[i, 1], y0, cell, ny), _cell(box[i, 3], y0, cell, ny) + 1):
-            for ix in range(_cell(box[i, 0], x0, cell, nx), _cell(box[i, 2], x0, cell, nx) + 1):
-                c = iy * nx + ix
-                for q in range(start[c], start[c + 1]):
-                    j = items[q]
-                    if j == i or mark[j] == i:
-                        continue
-                    mark[j] = i
-                    if box[j, 0] > box[i, 2] or box[j, 2] < box[i, 0] \
-                            or box[j, 1] > box[i, 3] or box[j, 3] < box[i, 1]:
-                        continue
-                    big_j = (box[j, 2] - box[j, 0] - abs(bx[j] - ax[j])) * 0.5
-                    if _segments2(ax[i], ay[i], bx[i], by[i], ax[j], ay[j], bx[j],
-                                  by[j]) >= (big_i + big_j) ** 2:
-                        continue
-                    near[m] = j
-                    m += 1
-        first = off[i]
-        d = off[i + 1] - first
-        for e in range(d):
-            q1 = first + e
-            q0 = first + (e - 1 if e > 0 else d - 1)
-            px = vx[q0]
-            py = vy[q0]
-            qx = vx[q1]
-            qy = vy[q1]
-            # how far the edge's line stands beyond rho from the path: 0 on the caps, the
-            # sides touch Q's extreme corners
-            beyond = 0.0
-            if e == 0 or e == k[i] + 1:
-                beyond = h[q1] - max(ux[q1] * ax[i] + uy[q1] * ay[i],
-                                     ux[q1] * bx[i] + uy[q1] * by[i]) - rho[i]
-            lo_x = min(px, qx)
-            hi_x = max(px, qx)
-            lo_y = min(py, qy)
-            hi_y = max(py, qy)
-            half = 0.5 * math.sqrt((qx - px) ** 2 + (qy - py) ** 2)  # (libm hypot: 3 % of all)
-            mx = 0.5 * (px + qx)
-            my = 0.5 * (py + qy)
-            n_iv = 0
-            covered = False
-            # the cap at b (edges 1 … k) is mostly inside the next chord's polygon
-            ahead = both and 0 < e <= k[i]
-            for mm in range(m):
-                sl = 1 - mm if ahead and mm < 2 else mm
-                j = near[sl]
-                if box[j, 0] > hi_x or box[j, 2] < lo_x or box[j, 1] > hi_y or box[j, 3] < lo_y:
-                    continue
-                d2 = _point_segment2(mx, my, ax[j], ay[j], bx[j], by[j])
-                big_j = (box[j, 2] - box[j, 0] - abs(bx[j] - ax[j])) * 0.5
-                if d2 > (big_j + half) ** 2:
-                    continue  # the edge stays outside the circumscribed capsule
-                if half < rho[j] - eps and d2 < (rho[j] - eps - half) ** 2:
-                    covered = True  # inside the inscribed capsule, deeper than eps
-                    break
-                # the ends' windows; an edge's start is the last edge's end, whose
-                # window against this neighbour is kept from its clip
-                kj = k[j]
-                if w_at[sl] == q0:
-                    j1 = w_j[sl]
-                    w1 = w_w[sl]
-                else:
-                    j1, w1 = _window(px, py, ax[j], ay[j], bx[j], by[j], ux[off[j]],
-                                     uy[off[j]], rho[j], kj, phase[j], eps, vc[kj])
-                j2, w2 = _window(qx, qy, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]],
-                                 rho[j], kj, phase[j], eps, vc[kj])
-                w_at[sl] = q1
-                w_j[sl] = j2
-                w_w[sl] = w2
-                t0, t1 = _clip_windows(px, py, qx, qy, ux, uy, h, off[j], off[j + 1],
-                                       eps if j < i else -eps, eps, ux[q1], uy[q1], j1, w1,
-                                       j2, w2)
-                if t1 > t0:
-                    if t0 <= 0.0 and t1 >= 1.0:
-                        covered = True
-                        break
-                    s = n_iv  # insertion by start: the lists are short
-                    while s > 0 and t_lo[s - 1] > t0:
-                        t_lo[s] = t_lo[s - 1]
-                        t_hi[s] = t_hi[s - 1]
-                        s -= 1
-                    t_lo[s] = t0
-                    t_hi[s] = t1
-                    n_iv += 1
-            if covered:
-                continue
-            t = 0.0
-            for s in range(n_iv + 1):
-                s0 = t_lo[s] if s < n_iv else 1.0
-                s1 = t_hi[s] if s < n_iv else 1.0
-                if s0 > t:
-                    if n_out == cap:
-                        cap *= 2
-                        grown = np.empty((cap, 5))
-                        grown[:n_out] = out[:n_out]
-                        out = grown
-                    e1 = min(s0, 1.0)
-                    x0_ = px + t * (qx - px)
-                    y0_ = py + t * (qy - py)
-                    x1_ = px + e1 * (qx - px)
-                    y1_ = py + e1 * (qy - py)
-                    out[n_out, 0] = x0_
-                    out[n_out, 1] = y0_
-                    out[n_out, 2] = x1_
-                    out[n_out, 3] = y1_
-                    out[n_out, 4] = beyond
-                    n_out += 1
-                if s1 > t:
-                    t = s1
-                if t >= 1.0:
-                    break
-    return out[:n_out]
+    return m
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _edge_row(i, e, beads, polys):  # pragma: no cover
+    """Edge e of polygon i as ``(px, py, qx, qy, beyond)``: from corner e - 1 to corner e,
+    and how far its line stands beyond rho from the path (0 on the caps, the sides touch
+    Q's extreme corners)."""
+    first = polys.planes.off[i]
+    d = polys.planes.off[i + 1] - first
+    q1 = first + e
+    q0 = first + (e - 1 if e > 0 else d - 1)
+    beyond = 0.0
+    if e == 0 or e == polys.k[i] + 1:
+        ux = polys.planes.ux
+        uy = polys.planes.uy
+        beyond = polys.planes.h[q1] - max(ux[q1] * beads.ax[i] + uy[q1] * beads.ay[i],
+                                          ux[q1] * beads.bx[i] + uy[q1] * beads.by[i]) \
+            - beads.rho[i]
+    return polys.vx[q0], polys.vy[q0], polys.vx[q1], polys.vy[q1], beyond
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _covered(i, e, ahead, m, beads, polys, vc, eps, memo):  # pragma: no cover
+    """The intervals of edge e of polygon i that its ``m`` neighbours cover, sorted by start
+    into ``memo.t_lo``, ``memo.t_hi``: their count, or -1 when the edge is covered whole.
+    ``ahead``: the next chord's polygon (slot 1) is tried first."""
+    ax, ay, bx, by, rho = beads
+    box = polys.box
+    off = polys.planes.off
+    near = memo.near
+    t_lo = memo.t_lo
+    t_hi = memo.t_hi
+    first = off[i]
+    q1 = first + e
+    q0 = first + (e - 1 if e > 0 else off[i + 1] - first - 1)
+    px = polys.vx[q0]
+    py = polys.vy[q0]
+    qx = polys.vx[q1]
+    qy = polys.vy[q1]
+    lo_x = min(px, qx)
+    hi_x = max(px, qx)
+    lo_y = min(py, qy)
+    hi_y = max(py, qy)
+    half = 0.5 * math.sqrt((qx - px) ** 2 + (qy - py) ** 2)  # (libm hypot: 3 % of all)
+    mx = 0.5 * (px + qx)
+    my = 0.5 * (py + qy)
+    n_iv = 0
+    for mm in range(m):
+        sl = 1 - mm if ahead and mm < 2 else mm
+        j = near[sl]
+        if box[j, 0] > hi_x or box[j, 2] < lo_x or box[j, 1] > hi_y or box[j, 3] < lo_y:
+            continue
+        d2 = _point_segment2(mx, my, ax[j], ay[j], bx[j], by[j])
+        big_j = (box[j, 2] - box[j, 0] - abs(bx[j] - ax[j])) * 0.5
+        if d2 > (big_j + half) ** 2:
+            continue  # the edge stays outside the circumscribed capsule
+        if half < rho[j] - eps and d2 < (rho[j] - eps - half) ** 2:
+            return -1  # inside the inscribed capsule, deeper than eps
+        # the ends' windows; an edge's start is the last edge's end, whose
+        # window against this neighbour is kept from its clip
+        vck = vc[polys.k[j]]
+        if memo.w_at[sl] == q0:
+            win1 = (memo.w_j[sl], memo.w_w[sl])
+        else:
+            win1 = _window(px, py, beads, polys, j, eps, vck)
+        win2 = _window(qx, qy, beads, polys, j, eps, vck)
+        memo.w_at[sl] = q1
+        memo.w_j[sl] = win2[0]
+        memo.w_w[sl] = win2[1]
+        t0, t1 = _clip_windows((px, py, qx, qy), polys.planes, off[j], off[j + 1],
+                               (eps if j < i else -eps, eps, polys.planes.ux[q1],
+                                polys.planes.uy[q1]), win1, win2)
+        if t1 > t0:
+            if t0 <= 0.0 and t1 >= 1.0:
+                return -1
+            s = n_iv  # insertion by start: the lists are short
+            while s > 0 and t_lo[s - 1] > t0:
+                t_lo[s] = t_lo[s - 1]
+                t_hi[s] = t_hi[s - 1]
+                s -= 1
+            t_lo[s] = t0
+            t_hi[s] = t1
+            n_iv += 1
+    return n_iv
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _emit(out, n_out, row, memo, n_iv):  # pragma: no cover
+    """Write into ``out`` from row ``n_out`` on (room for ``n_iv + 1`` rows) the pieces of
+    the edge ``row`` (:func:`_edge_row`) between its ``n_iv`` covered intervals; the new
+    count of rows."""
+    px, py, qx, qy, beyond = row
+    t_lo = memo.t_lo
+    t_hi = memo.t_hi
+    t = 0.0
+    for s in range(n_iv + 1):
+        s0 = t_lo[s] if s < n_iv else 1.0
+        s1 = t_hi[s] if s < n_iv else 1.0
+        if s0 > t:
+            e1 = min(s0, 1.0)
+            out[n_out, 0] = px + t * (qx - px)
+            out[n_out, 1] = py + t * (qy - py)
+            out[n_out, 2] = px + e1 * (qx - px)
+            out[n_out, 3] = py + e1 * (qy - py)
+            out[n_out, 4] = beyond
+            n_out += 1
+        if s1 > t:
+            t = s1
+        if t >= 1.0:
+            break
+    return n_out
 
 
 @numba.njit(cache=True, nogil=True)

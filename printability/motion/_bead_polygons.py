@@ -21,6 +21,7 @@ import numpy as np
 
 from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._kernels import bin_boxes as _bin_boxes
+from printability.motion.records import CellGrid
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
@@ -122,7 +123,7 @@ def _polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
     return off, ux, uy, h, vx, vy, box, k, phase
 
 
-def _grid(box: np.ndarray) -> tuple:
+def _grid(box: np.ndarray) -> CellGrid:
     """Uniform grid over the polygons' boxes, about one polygon per cell (CSR)."""
     x0, y0 = float(box[:, 0].min()), float(box[:, 1].min())
     w = float(box[:, 2].max()) - x0
@@ -131,4 +132,4 @@ def _grid(box: np.ndarray) -> tuple:
     nx = int(w // cell) + 1
     ny = int(hgt // cell) + 1
     start, items = _bin_boxes(box[:, 0], box[:, 1], box[:, 2], box[:, 3], x0, y0, cell, nx, ny)
-    return start, items, x0, y0, cell, nx, ny
+    return CellGrid(start, items, x0, y0, cell, nx, ny)

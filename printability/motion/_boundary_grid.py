@@ -24,16 +24,17 @@ from shapely.geometry.base import BaseGeometry
 from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._kernels import bin_boxes
 from printability.motion.beadunion import BeadUnion
+from printability.motion.records import BoundaryGrid, CellGrid
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["boundary_grid"]
 
 
-_cache: list[tuple[BaseGeometry, tuple]] = []
+_cache: list[tuple[BaseGeometry, BoundaryGrid]] = []
 
 
-def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
+def boundary_grid(target: BaseGeometry | BeadUnion) -> BoundaryGrid:
     """Edges of ∂G binned on a uniform grid (CSR), cached for the last few targets.
 
     ``target`` is a shapely geometry or a :class:`~printability.motion.beadunion.BeadUnion`
@@ -41,11 +42,9 @@ def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
 
     Returns
     -------
-    tuple
-        ``(ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, packed)``: edge
-        ends, for cell ``c = iy·nx + ix`` the edges ``items[start[c]:start[c+1]]``,
-        the grid origin, cell size and shape, and per entry of ``items`` its edge's
-        ends and box (:func:`_pack_edges`).
+    BoundaryGrid
+        The edge ends, the grid listing them per cell, and per entry of the grid's
+        ``items`` its edge's ends (:func:`_pack_edges`).
     """
     for g, grid in _cache:
         if g is target:
@@ -72,8 +71,8 @@ def boundary_grid(target: BaseGeometry | BeadUnion) -> tuple:
     ny = int(hgt // cell) + 1
     start, items = bin_boxes(np.minimum(ex0, ex1), np.minimum(ey0, ey1), np.maximum(ex0, ex1),
                              np.maximum(ey0, ey1), x0, y0, cell, nx, ny)
-    grid = (ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny,
-            _pack_edges(ex0, ey0, ex1, ey1, items))
+    grid = BoundaryGrid(ex0, ey0, ex1, ey1, CellGrid(start, items, x0, y0, cell, nx, ny),
+                        _pack_edges(ex0, ey0, ex1, ey1, items))
     _cache.insert(0, (target, grid))
     del _cache[4:]
     return grid

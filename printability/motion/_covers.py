@@ -70,14 +70,16 @@ def _clip(ax, ay, bx, by, cu, su, h, off, order):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, packed,
-            todo, eps, order, out):  # pragma: no cover
+def _decide(rings, planes, grid, todo, eps, order, out):  # pragma: no cover
     """Per ring of ``todo``: 1 inside, 0 not inside, -1 undecided (∂G within ``eps``).
 
-    A hand-written kernel because the candidates are few (a grid cell or two of
-    ∂G per footprint) and the test per edge is 64 multiply-adds: GEOS's general
-    covers builds a noded graph of both boundaries for every footprint.
+    ``planes`` holds the rings' half-planes (``cu``, ``su``, ``h``, each (n, k)), ``grid``
+    the :class:`~printability.motion.records.BoundaryGrid` of ∂G. A hand-written kernel
+    because the candidates are few (a grid cell or two of ∂G per footprint) and the test
+    per edge is 64 multiply-adds: GEOS's general covers builds a noded graph of both
+    boundaries for every footprint.
     """
+    cu, su, h = planes
     k = rings.shape[1] - 1
     found = np.zeros(1, np.int64)
     for m in range(len(todo)):
@@ -93,18 +95,21 @@ def _decide(rings, cu, su, h, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx
             bx1 = max(bx1, x)
             by0 = min(by0, y)
             by1 = max(by1, y)
-        out[i] = _edges_state(cu[i], su[i], h[i], bx0 - eps, by0 - eps, bx1 + eps, by1 + eps,
-                              start, items, x0, y0, cell, nx, ny, packed, eps, order, found)
+        out[i] = _edges_state(cu[i], su[i], h[i], (bx0 - eps, by0 - eps, bx1 + eps, by1 + eps),
+                              grid.cells, grid.packed, eps, order, found)
 
 
 @numba.njit(cache=True, _nrt=False)
-def _edges_state(cu, su, h, bx0, by0, bx1, by1, start, items, x0, y0, cell, nx, ny, packed, eps,
-                 order, found):  # pragma: no cover
+def _edges_state(cu, su, h, box, cells, packed, eps, order, found):  # pragma: no cover
     """One footprint of :func:`_decide`: 0 if ∂G enters it, -1 if ∂G grazes it, else 1.
 
-    ``bx0``… is the ring's bounding box already grown by ``eps``; the edges are read
-    from the grid's ``packed`` rows.
+    ``box`` is the ring's bounding box ``(x0, y0, x1, y1)`` already grown by ``eps``; the
+    edges are read from the ``packed`` rows of a
+    :class:`~printability.motion.records.BoundaryGrid` (its ``cells`` list them);
+    ``found[0]`` is set to the edge that enters it.
     """
+    bx0, by0, bx1, by1 = box
+    start, items, x0, y0, cell, nx, ny = cells
     ix0 = _cell(bx0, x0, cell, nx)
     ix1 = _cell(bx1, x0, cell, nx)
     iy0 = _cell(by0, y0, cell, ny)
@@ -181,8 +186,8 @@ def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np
         return out
     state = np.full(n, 0, np.int8)
     grid = boundary_grid(target)
-    _decide(np.ascontiguousarray(rings), np.ascontiguousarray(cu), np.ascontiguousarray(su),
-            np.ascontiguousarray(h), *grid, todo, EPS, _order(h.shape[1]), state)
+    planes = (np.ascontiguousarray(cu), np.ascontiguousarray(su), np.ascontiguousarray(h))
+    _decide(np.ascontiguousarray(rings), planes, grid, todo, EPS, _order(h.shape[1]), state)
     out[state == 1] = True
     rest = np.flatnonzero(state == -1)
     if rest.size:

@@ -11,6 +11,7 @@ first.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -23,6 +24,8 @@ from printability.motion._sweep import (
     _directions,
     _move_normal,
     _offsets,
+    _piece,
+    _pose,
     _sweep_frame,
 )
 
@@ -31,25 +34,39 @@ _guard_kernel_caches()  # the cache check runs before a kernel here loads
 __all__ = ["first_fits"]
 
 
+class _Scratch(NamedTuple):
+    """The working arrays of :func:`first_fits`: the current segment's directions ``cu``,
+    ``su`` and extent ``w`` along them, a footprint's offsets ``h``, the edges that last
+    refused a footprint (``mru``, their lengths ``mru_len``), the edge the scan found
+    (``found[0]``), and whether the segment's start lies in G (``where[0]``: -1 not
+    located yet, 0 outside, 1 inside)."""
+
+    cu: np.ndarray
+    su: np.ndarray
+    w: np.ndarray
+    h: np.ndarray
+    mru: np.ndarray
+    mru_len: np.ndarray
+    found: np.ndarray
+    where: np.ndarray
+
+
 @numba.njit(cache=True, nogil=True)
-def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, scale, seg, gseg, c0, s0, c1, s1,
-               k, gpos, gend, cb, sb, det, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx,
-               ny, packed, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx, lny, lax,
-               lay, lbx, lby, lrho, eps, order, out_idx, out_state):  # pragma: no cover
+def first_fits(pieces, moves, angles, groups, dirs, grid, loc, eps, out_idx,
+               out_state):  # pragma: no cover
     """Per group of candidates, the first whose swept footprint lies inside G.
 
-    Candidate ``q`` sweeps the pieces (``kind`` 0 ellipse, 1 rectangle, with
-    semi-axes ``pa``, ``pb``, centre ``pcx``, ``pcy``, rotation cos/sin
-    ``prc``, ``prs``) along segment ``seg[q]`` (or ``gseg[g]`` for all the
+    Candidate ``q`` sweeps the ``pieces`` (a :class:`~printability.motion.records.Pieces`)
+    along segment ``groups.seg[q]`` of ``moves`` (or ``groups.gseg[g]`` for all the
     candidates of group ``g`` when ``gseg`` is non-empty: groups may then share
-    candidates) (``p0``, ``p1``, ``scale`` if non-empty; the normal of
-    :func:`_move_normal`) at the orientation ``c0[q]``, ``s0[q]``
-    (turning to ``c1``, ``s1`` with factor ``k`` when ``k`` is non-empty).
-    Group ``g`` tries ``gpos[g] … gend[g] - 1`` in order and stops at the
-    first that fits (``out_state`` 1, ``out_idx`` its index), at the first
-    ∂G grazes (``out_state`` -1: shapely decides, the caller resumes after it)
-    or finds none (``out_state`` 0, ``out_idx`` -1). ``loff`` … ``lny`` are
-    :func:`locator`'s: points are located in a bead union's polygons.
+    candidates; the normal of :func:`_move_normal`, the base directions of ``dirs``) at
+    the orientation ``angles.c0[q]``, ``angles.s0[q]`` (turning to ``c1``, ``s1`` with
+    factor ``k`` when ``angles.k`` is non-empty). Group ``g`` tries ``gpos[g] … gend[g] - 1``
+    in order and stops at the first that fits (``out_state`` 1, ``out_idx`` its index), at
+    the first ∂G grazes (``out_state`` -1: shapely decides, the caller resumes after it)
+    or finds none (``out_state`` 0, ``out_idx`` -1). ``grid`` is ∂G's
+    :class:`~printability.motion.records.BoundaryGrid`, ``loc`` :func:`locator`'s: points
+    are located in a bead union's polygons.
 
     Each footprint gets the decision of :func:`covers_rings` on the ring of
     :func:`swept_kernel`: the half-planes are computed by the same code, the
@@ -67,7 +84,7 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, scale, seg, gseg, c0, s
       is a refusal whichever edge the scan would have met first, and the scan
       finds such an edge (the piece lies in the footprint's box and cells).
       Without a turn they are first tested against the ellipses swept
-      (:func:`_deep_in_sweep`, before any half-plane is computed: most
+      (:func:`_deep_in_recent`, before any half-plane is computed: most
       candidates end there), then with :func:`_clip`; a segment's directions are found
       only once one of its candidates gets past that test;
     * the point located is the segment's start where it lies in every
@@ -77,22 +94,31 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, scale, seg, gseg, c0, s
       once per segment: all the points of a footprint that ∂G does not come
       within ``eps`` of are on the same side of ∂G.
     """
-    d = len(cb)
-    turning = len(k) > 0
-    scaled = len(scale) > 0
-    cu = np.empty(d)
-    su = np.empty(d)
-    w = np.empty(d)
-    h = np.empty(d)
-    centred = True  # every piece centred on the nozzle: the segment's start lies in it
-    for p in range(len(kind)):
-        if pcx[p] != 0.0 or pcy[p] != 0.0 or pa[p] < 0.0 or pb[p] < 0.0:
-            centred = False
-    mru = np.full(4, -1, np.int64)
-    mru_len = np.zeros(4)  # their lengths
-    found = np.zeros(1, np.int64)
-    where = -1  # start point of the segment: -1 not located yet, 0 outside, 1 inside
-    directed = False  # cu, su, w are the current segment's
+    d = len(dirs.cb)
+    work = _Scratch(np.empty(d), np.empty(d), np.empty(d), np.empty(d),
+                    np.full(4, -1, np.int64), np.zeros(4), np.zeros(1, np.int64),
+                    np.full(1, -1, np.int64))
+    _groups(pieces, moves, angles, groups, dirs, grid, loc, eps, work, (out_idx, out_state))
+
+
+@numba.njit(cache=True, _nrt=False)
+def _groups(pieces, moves, angles, groups, dirs, grid, loc, eps, work, out):  # pragma: no cover
+    """:func:`first_fits`'s loop over the groups, given its working arrays ``work``.
+
+    Compiled without the runtime, as are the steps it inlines (:func:`_deep_in_recent`,
+    :func:`_candidate_state` …): arrays read from the records then cost no reference
+    counting, and the steps no call.
+    """
+    out_idx, out_state = out
+    turning = len(angles.k) > 0
+    centred = _centred(pieces)
+    seg, gseg, gpos, gend = groups
+    p0 = moves.p0
+    p1 = moves.p1
+    cb = dirs.cb
+    sb = dirs.sb
+    where = work.where
+    directed = False  # work.cu, su, w are the current segment's
     last = -1
     for g in range(len(gpos)):
         out_idx[g] = -1
@@ -101,113 +127,149 @@ def first_fits(kind, pa, pb, pcx, pcy, prc, prs, p0, p1, scale, seg, gseg, c0, s
             m = gseg[g] if len(gseg) else seg[q]
             if m != last:  # the candidates of a move share its directions
                 last = m
-                where = -1
+                where[0] = -1
                 directed = False
-            state = 1
-            if not turning:
-                # the edges that refused the last footprints, tested against the ellipse
-                # swept (no half-plane needed): most candidates end here
-                sc = scale[m] if scaled else 1.0
-                for p in range(len(kind)):
-                    if pa[p] <= 0.0 or pb[p] <= 0.0 or not sc * min(pa[p], pb[p]) >= 1e-3:
-                        continue
-                    sx = p1[m, 0] - p0[m, 0]
-                    sy = p1[m, 1] - p0[m, 1]
-                    m00, m01, m10, m11, qx, qy, tx, ty = _sweep_frame(
-                        sx, sy, pa[p], pb[p], pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q], sc)
-                    for r in range(len(mru)):
-                        e = mru[r]
-                        if e < 0:
-                            break
-                        if mru_len[r] < 1e-6:
-                            continue
-                        if _deep_in_frame(ex0[e] - p0[m, 0], ey0[e] - p0[m, 1],
-                                          ex1[e] - p0[m, 0], ey1[e] - p0[m, 1], m00, m01, m10,
-                                          m11, qx, qy, tx, ty):
-                            _to_front(mru, mru_len, r, e, mru_len[r])
-                            state = 0
-                            break
-                    if state == 0:
-                        break
-                if state == 0:
-                    continue
+            if not turning and _deep_in_recent(pieces, moves, m, angles, q, grid, work):
+                continue
             if not directed:  # (found only now: the shortcut above ends most candidates)
                 cn, sn = _move_normal(p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1])
-                _directions(cn, sn, cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], cu,
-                            su, w)
+                _directions(cn, sn, cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], work.cu,
+                            work.su, work.w)
                 directed = True
-            for p in range(len(kind)):
-                _offsets(kind[p], pa[p], pb[p], pcx[p], pcy[p], prc[p], prs[p], c0[q], s0[q],
-                         c1[q] if turning else 0.0, s1[q] if turning else 0.0,
-                         k[q] if turning else 1.0, turning, scale[m] if scaled else 1.0, scaled,
-                         cu, su, w, h)
-                refused = False
-                for r in range(len(mru)):
-                    e = mru[r]
-                    if e < 0:
-                        break
-                    ax = ex0[e]
-                    ay = ey0[e]
-                    bx = ex1[e]
-                    by = ey1[e]
-                    # only the refusal test: the shortcut never accepts, so whether
-                    # the edge meets the footprint grown by eps is left to the scan
-                    t = _clip(ax, ay, bx, by, cu, su, h, -eps, order)
-                    if t > 0.0 and t * mru_len[r] > eps:
-                        _to_front(mru, mru_len, r, e, mru_len[r])
-                        refused = True
-                        break
-                if refused:
-                    state = 0
-                    break
-                # the bounding box of the ring's vertices as swept_kernel computes them
-                # ((numerator) / det each): dividing by det > 0 keeps the order of the
-                # rounded values, so the extreme numerators give the extreme vertices
-                nx0 = h[0] * su[1] - h[1] * su[0]
-                ny0 = cu[0] * h[1] - cu[1] * h[0]
-                mx0 = nx0
-                mx1 = nx0
-                my0 = ny0
-                my1 = ny0
-                for j in range(1, d):
-                    jn = j + 1 if j + 1 < d else 0
-                    x = h[j] * su[jn] - h[jn] * su[j]
-                    y = cu[j] * h[jn] - cu[jn] * h[j]
-                    mx0 = min(mx0, x)
-                    mx1 = max(mx1, x)
-                    my0 = min(my0, y)
-                    my1 = max(my1, y)
-                st = _edges_state(cu, su, h, mx0 / det - eps, my0 / det - eps, mx1 / det + eps,
-                                  my1 / det + eps, start, items, x0, y0, cell, nx, ny, packed,
-                                  eps, order, found)
-                if st == 0:
-                    e = found[0]
-                    _to_front(mru, mru_len, len(mru) - 1, e,
-                              math.sqrt((ex1[e] - ex0[e]) ** 2 + (ey1[e] - ey0[e]) ** 2))
-                if st == 1:
-                    if centred and not (scaled and scale[m] < 0.0):
-                        if where < 0:
-                            where = 1 if _locate(p0[m, 0], p0[m, 1], ex0, ey0, ex1, ey1,
-                                                 start, items, x0, y0, cell, nx, ny, loff, lux,
-                                                 luy, lh, lstart, litems, lx0, ly0, lcell, lnx,
-                                                 lny, lax, lay, lbx, lby, lrho) else 0
-                        inside = where == 1
-                    else:
-                        inside = _locate(nx0 / det, ny0 / det, ex0, ey0, ex1, ey1, start,
-                                         items, x0, y0, cell, nx, ny, loff, lux, luy, lh, lstart,
-                                         litems, lx0, ly0, lcell, lnx, lny, lax, lay, lbx,
-                                         lby, lrho)
-                    if not inside:
-                        st = 0
-                if st == 0:
-                    state = 0
-                    break
-                if st == -1:
-                    state = -1  # still 0 if another piece pokes out
+            state = _candidate_state(pieces, moves, m, angles, q, dirs, grid, loc, eps, work,
+                                     centred)
             if state != 0:
                 out_idx[g] = q
                 out_state[g] = state
                 break
+
+
+@numba.njit(cache=True, _nrt=False)
+def _centred(pieces):  # pragma: no cover
+    """Whether every piece is centred on the nozzle and not mirrored: the segment's start
+    then lies in every footprint."""
+    for p in range(len(pieces.kind)):
+        if pieces.cx[p] != 0.0 or pieces.cy[p] != 0.0 or pieces.a[p] < 0.0 \
+                or pieces.b[p] < 0.0:
+            return False
+    return True
+
+
+@numba.njit(cache=True, _nrt=False, inline="always")
+def _deep_in_recent(pieces, moves, m, angles, q, grid, work):  # pragma: no cover
+    """Whether an edge that refused a recent footprint lies deep in the ellipse of a piece
+    swept along segment ``m`` at candidate ``q``'s orientation (no turn): a refusal found
+    with no half-plane (:func:`_deep_in_frame`); the edge moves to the front."""
+    p0 = moves.p0
+    p1 = moves.p1
+    ex0, ey0, ex1, ey1 = grid.ex0, grid.ey0, grid.ex1, grid.ey1
+    mru = work.mru
+    mru_len = work.mru_len
+    sc = moves.scale[m] if len(moves.scale) > 0 else 1.0
+    for p in range(len(pieces.kind)):
+        a = pieces.a[p]
+        b = pieces.b[p]
+        if a <= 0.0 or b <= 0.0 or not sc * min(a, b) >= 1e-3:
+            continue
+        sx = p1[m, 0] - p0[m, 0]
+        sy = p1[m, 1] - p0[m, 1]
+        frame = _sweep_frame(sx, sy, _piece(pieces, p), angles.c0[q], angles.s0[q], sc)
+        for r in range(len(mru)):
+            e = mru[r]
+            if e < 0:
+                break
+            if mru_len[r] < 1e-6:
+                continue
+            if _deep_in_frame(ex0[e] - p0[m, 0], ey0[e] - p0[m, 1], ex1[e] - p0[m, 0],
+                              ey1[e] - p0[m, 1], frame):
+                _to_front(mru, mru_len, r, e, mru_len[r])
+                return True
+    return False
+
+
+@numba.njit(cache=True, _nrt=False, inline="always")
+def _candidate_state(pieces, moves, m, angles, q, dirs, grid, loc, eps, work,
+                     centred):  # pragma: no cover
+    """Candidate ``q`` on segment ``m`` (whose directions ``work`` holds): 1 inside, 0 not
+    inside, -1 undecided (∂G grazes a piece and none pokes out), piece by piece."""
+    state = 1
+    for p in range(len(pieces.kind)):
+        _offsets(_piece(pieces, p), _pose(angles, q, moves.scale, m), work.cu, work.su, work.w,
+                 work.h)
+        if _refused_by_recent(grid, eps, dirs.order, work):
+            return 0
+        st, vx, vy = _scan(grid, eps, dirs, work)
+        if st == 0:
+            return 0
+        if st == 1:
+            if centred and not (len(moves.scale) > 0 and moves.scale[m] < 0.0):
+                # the segment's start lies in the footprint: located once per segment
+                if work.where[0] < 0:
+                    work.where[0] = 1 if _locate(moves.p0[m, 0], moves.p0[m, 1], grid,
+                                                 loc) else 0
+                inside = work.where[0] == 1
+            else:
+                inside = _locate(vx, vy, grid, loc)
+            if not inside:
+                return 0
+        if st == -1:
+            state = -1  # still 0 if another piece pokes out
+    return state
+
+
+@numba.njit(cache=True, _nrt=False, inline="always")
+def _refused_by_recent(grid, eps, order, work):  # pragma: no cover
+    """Whether an edge that refused a recent footprint has a piece inside this one (the
+    half-planes in ``work``): only the refusal test, the shortcut never accepts, so whether
+    the edge meets the footprint grown by ``eps`` is left to the scan."""
+    mru = work.mru
+    mru_len = work.mru_len
+    for r in range(len(mru)):
+        e = mru[r]
+        if e < 0:
+            break
+        t = _clip(grid.ex0[e], grid.ey0[e], grid.ex1[e], grid.ey1[e], work.cu, work.su, work.h,
+                  -eps, order)
+        if t > 0.0 and t * mru_len[r] > eps:
+            _to_front(mru, mru_len, r, e, mru_len[r])
+            return True
+    return False
+
+
+@numba.njit(cache=True, _nrt=False, inline="always")
+def _scan(grid, eps, dirs, work):  # pragma: no cover
+    """The edge test of the footprint whose half-planes ``work`` holds, on the edges of ∂G
+    near its ring's box (:func:`_edges_state`): its state and the ring's first vertex. An
+    edge entering it moves to the front of the recent ones."""
+    cu = work.cu
+    su = work.su
+    h = work.h
+    det = dirs.det
+    d = len(cu)
+    # the bounding box of the ring's vertices as swept_kernel computes them
+    # ((numerator) / det each): dividing by det > 0 keeps the order of the
+    # rounded values, so the extreme numerators give the extreme vertices
+    nx0 = h[0] * su[1] - h[1] * su[0]
+    ny0 = cu[0] * h[1] - cu[1] * h[0]
+    mx0 = nx0
+    mx1 = nx0
+    my0 = ny0
+    my1 = ny0
+    for j in range(1, d):
+        jn = j + 1 if j + 1 < d else 0
+        x = h[j] * su[jn] - h[jn] * su[j]
+        y = cu[j] * h[jn] - cu[jn] * h[j]
+        mx0 = min(mx0, x)
+        mx1 = max(mx1, x)
+        my0 = min(my0, y)
+        my1 = max(my1, y)
+    box = (mx0 / det - eps, my0 / det - eps, mx1 / det + eps, my1 / det + eps)
+    st = _edges_state(cu, su, h, box, grid.cells, grid.packed, eps, dirs.order, work.found)
+    if st == 0:
+        e = work.found[0]
+        _to_front(work.mru, work.mru_len, len(work.mru) - 1, e,
+                  math.sqrt((grid.ex1[e] - grid.ex0[e]) ** 2 + (grid.ey1[e] - grid.ey0[e]) ** 2))
+    return st, nx0 / det, ny0 / det
 
 
 @numba.njit(cache=True, _nrt=False)

@@ -52,7 +52,7 @@ def chain_nearest(c1, c2, per, previous):  # pragma: no cover
 
 @numba.njit(cache=True)
 def smooth_chain(angle, c1, c2, searched, reach, per, previous):  # pragma: no cover
-    """The proposals of :func:`printability.motion.orientation._smooth`, compiled.
+    """The proposals of :func:`printability.motion._passes.smooth`, compiled.
 
     Per move (NaN moves skipped and kept): a searched move's orientation (or any, on
     a limited axis) unwrapped nearest the last pick; otherwise, of ``c1`` and ``c2``,

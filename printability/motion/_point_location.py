@@ -19,6 +19,7 @@ from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.motion._kernels import cell_of as _cell
 from printability.motion._kernels import point_segment2 as _point_segment2
 from printability.motion.beadunion import BeadUnion, in_polygons
+from printability.motion.records import Beads, CellGrid, HalfPlanes, Locator
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
@@ -26,8 +27,9 @@ __all__ = ["_AXIS", "_locate", "_near_axis", "locator"]
 
 
 @numba.njit(cache=True, _nrt=False)
-def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # pragma: no cover
-    """Whether a point at least ~``EPS`` away from ∂G lies in G (parity of a ray's crossings).
+def _inside(px, py, grid):  # pragma: no cover
+    """Whether a point at least ~``EPS`` away from ∂G lies in G (parity of a ray's crossings
+    of the edges of the :class:`~printability.motion.records.BoundaryGrid` ``grid``).
 
     The ray runs along the point's grid row towards the nearer side of the grid;
     an edge listed in several cells of the row is counted in the first cell the
@@ -36,6 +38,8 @@ def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # 
     only compared with the point's, which is far from the edge, so its rounding
     cannot flip the count.
     """
+    ex0, ey0, ex1, ey1, cells, _ = grid
+    start, items, x0, y0, cell, nx, ny = cells
     iy = _cell(py, y0, cell, ny)
     ix = _cell(px, x0, cell, nx)
     right = nx - 1 - ix <= ix
@@ -64,18 +68,19 @@ def _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny):  # 
     return inside
 
 
-_NO_POLYGONS = (np.zeros(1, np.int64), np.zeros(0), np.zeros(0), np.zeros(0),
-                np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0, 1, 1,
-                np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
+_NO_POLYGONS = Locator(HalfPlanes(np.zeros(1, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)),
+                       CellGrid(np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0, 1,
+                                1),
+                       Beads(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)))
 
 
-def locator(target: BaseGeometry | BeadUnion) -> tuple:
+def locator(target: BaseGeometry | BeadUnion) -> Locator:
     """What :func:`first_fits` locates points with: a bead union's polygons, their grid
     and their beads (axis ends and radius), or nothing (a shapely target: parity of ∂G's
     crossings)."""
     if isinstance(target, BeadUnion):
-        return (target.off, target.ux, target.uy, target.h, *target.grid, target.ax,
-                target.ay, target.bx, target.by, target.rho)
+        return Locator(target.half_planes, target.grid,
+                       Beads(target.ax, target.ay, target.bx, target.by, target.rho))
     return _NO_POLYGONS
 
 
@@ -84,8 +89,10 @@ _AXIS = 1e-6
 
 
 @numba.njit(cache=True, _nrt=False)
-def _near_axis(px, py, start, items, x0, y0, cell, nx, ny, ax, ay, bx, by, rho):  # pragma: no cover
-    """Whether the point is within ``rho - _AXIS`` of the axis of a bead listed in its cell.
+def _near_axis(px, py, cells, beads):  # pragma: no cover
+    """Whether the point is within ``rho - _AXIS`` of the axis of a bead listed in its cell
+    (``cells`` a :class:`~printability.motion.records.CellGrid`, ``beads`` the
+    :class:`~printability.motion.records.Beads`).
 
     A sufficient test of :func:`~printability.motion.beadunion.in_polygons`: a bead
     polygon holds the points within ``rho`` of its axis (its half-planes are tangent to
@@ -94,6 +101,8 @@ def _near_axis(px, py, start, items, x0, y0, cell, nx, ny, ax, ay, bx, by, rho):
     are mostly on some move's axis, where the half-planes are many (a polygon's 2k) and
     this test is one distance.
     """
+    start, items, x0, y0, cell, nx, ny = cells
+    ax, ay, bx, by, rho = beads
     c = _cell(py, y0, cell, ny) * nx + _cell(px, x0, cell, nx)
     for q in range(start[c], start[c + 1]):
         i = items[q]
@@ -104,16 +113,13 @@ def _near_axis(px, py, start, items, x0, y0, cell, nx, ny, ax, ay, bx, by, rho):
 
 
 @numba.njit(cache=True, _nrt=False)
-def _locate(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny, loff, lux, luy, lh,
-            lstart, litems, lx0, ly0, lcell, lnx, lny, lax, lay, lbx, lby,
-            lrho):  # pragma: no cover
+def _locate(px, py, grid, loc):  # pragma: no cover
     """Whether a point at least ~``EPS`` from ∂G lies in G: in one of the polygons of a
     bead union when there are any (near a bead's axis first), else by the parity of ∂G's
-    crossings."""
-    if len(loff) > 1:
-        if _near_axis(px, py, lstart, litems, lx0, ly0, lcell, lnx, lny, lax, lay, lbx, lby,
-                      lrho):
+    crossings (``grid`` the :class:`~printability.motion.records.BoundaryGrid`, ``loc``
+    the :class:`~printability.motion.records.Locator`)."""
+    if len(loc.polygons.off) > 1:
+        if _near_axis(px, py, loc.cells, loc.beads):
             return True
-        return in_polygons(px, py, loff, lux, luy, lh, lstart, litems, lx0, ly0, lcell, lnx,
-                           lny)
-    return _inside(px, py, ex0, ey0, ex1, ey1, start, items, x0, y0, cell, nx, ny)
+        return in_polygons(px, py, loc.polygons, loc.cells)
+    return _inside(px, py, grid)

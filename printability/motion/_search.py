@@ -20,6 +20,7 @@ import numpy as np
 from printability._arrays import take_rows
 from printability.motion import footprints as fp
 from printability.motion._plan_kernels import merge_pieces, points_along, split_intervals
+from printability.motion.plan import PlanContext
 
 __all__ = ["_cost_order", "_search_ordered", "_split_many", "_tried"]
 
@@ -67,8 +68,8 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
         phis = np.take_along_axis(near, order, axis=1)[np.arange(ncand)[None, :]
                                                        < count[:, None]]
         gend = np.cumsum(count)
-        first = fp._first_fit(target, pieces, p0, p1, scale, np.repeat(np.arange(k), count),
-                           phis, None, gend - count, gend, workers=workers)
+        first = fp._first_fit(target, pieces, (p0, p1, scale), np.repeat(np.arange(k), count),
+                              phis, gend - count, gend, workers=workers)
         found = first >= 0
         best[found] = phis[first[found]]
         return found, best
@@ -146,7 +147,7 @@ def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast, *,
     rad = np.deg2rad(allcols)
     trig = (take_rows(np.cos(rad), iv_mv).reshape(-1), take_rows(np.sin(rad), iv_mv).reshape(-1))
     inner = gend - ncol
-    probe = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv, phis, None, inner, gend,
+    probe = fp._first_fit(target, pieces, (q0, q1, sc_iv), cand_iv, phis, inner, gend,
                           trig=trig, workers=workers)
     lo = 0
     for k, t in enumerate(tops):
@@ -158,8 +159,8 @@ def _first_intervals(target, pieces, q0, q1, sc_iv, iv_mv, ivpos, tops, fast, *,
         rows = np.flatnonzero(inner[mv] > gpos[mv])
         if rows.size:
             cand, ends = _set_candidates(ivpos, mv[rows], 1, lo, hi, ncol)
-            outer = fp._first_fit(target, pieces, q0, q1, sc_iv, cand_iv[cand], phis[cand],
-                                  None, ends - np.diff(ends, prepend=0), ends,
+            outer = fp._first_fit(target, pieces, (q0, q1, sc_iv), cand_iv[cand], phis[cand],
+                                  ends - np.diff(ends, prepend=0), ends,
                                   trig=(trig[0][cand], trig[1][cand]), workers=workers)
             first[rows] = np.where(outer >= 0, cand[np.maximum(outer, 0)], first[rows])
         best_iv[mv] = cand_iv[first]
@@ -179,10 +180,12 @@ def _set_candidates(ivpos, mv, drop_last, lo, hi, ncol):
     return cand, np.cumsum(n_iv * (hi - lo))
 
 
-def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab, per, nozzle,
-                options, scale=None, fast=True, ordered=None, tried=None, exact=None,
-                workers=1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Keep the parts of moves that fit somewhere; drop the rest (all moves at once).
+def _split_many(ctx: PlanContext, prev: np.ndarray, cands: np.ndarray, *, fast: bool = True,
+                ordered: tuple | None = None, tried: np.ndarray | None = None,
+                exact: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Keep the parts of the moves of ``ctx`` that fit somewhere; drop the rest (all moves
+    at once).
 
     A move usually fails because one end pokes out at a corner: first the
     longest sub-interval that fits at one of the two orientations laying the planned
@@ -190,8 +193,8 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     found among intervals trimmed at the start, the end or both by
     geometrically growing lengths; each trimmed-off part is then searched
     whole at every orientation and, where nothing fits, cut into pieces of
-    twice ``split_length`` searched again, and what still fits nowhere halved once
-    more (pieces down to ``split_length``). A few vectorised searches in all,
+    twice ``ctx.step`` searched again, and what still fits nowhere halved once
+    more (pieces down to ``ctx.step``). A few vectorised searches in all,
     whatever the number of moves. ``ordered`` is :func:`_cost_order`'s answer for these
     moves when already known (only where ``prev`` has no NaN: here a NaN counts as 0), and
     ``tried`` (with it) how many of each move's first candidates in that order the whole
@@ -200,13 +203,16 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
     Returns the pieces as arrays ``(move, t0, t1, angle)`` by move (:attr:`Plan.piece_rows`;
     a move with no row is dropped).
     """
+    target, pieces, a, b, scale = ctx.target, ctx.pieces, ctx.p0, ctx.p1, ctx.scale
+    workers = ctx.workers
     n = len(a)
-    step = options.split_length or max(0.05, nozzle.radius / 4)
+    step = ctx.step
     ba = b - a
     length = np.hypot(*ba.T)
     if ordered is None or np.isnan(prev).any():
         prev = np.where(np.isnan(prev), 0.0, prev)
-        near, order_all = _cost_order(direction, width, prev, cands, beta, wtab, per, options)
+        near, order_all = _cost_order(ctx.direction, ctx.widths, prev, cands, ctx.beta,
+                                      ctx.wtab, ctx.per, ctx.options)
         tried = None  # another order: what was refused is not its first candidates
     else:
         near, order_all = ordered
@@ -258,9 +264,10 @@ def _split_many(target, pieces, a, b, direction, width, prev, cands, beta, wtab,
         q1 = points_along(a, ba, idx, tb)
         if fast and fp._fused(pieces) and ncand:
             # no limit: a part tries all its move's candidates, in order
-            first = fp._first_fit(target, pieces, q0, q1, None if scale is None else scale[idx],
-                               None, near_ord, None, idx * ncand + skip, idx * ncand + ncand,
-                               gseg=np.arange(idx.size), trig=trig, workers=workers)
+            first = fp._first_fit(target, pieces,
+                                  (q0, q1, None if scale is None else scale[idx]), None,
+                                  near_ord, idx * ncand + skip, idx * ncand + ncand,
+                                  gseg=np.arange(idx.size), trig=trig, workers=workers)
             found = first >= 0
             best = np.where(found, near_ord[first], np.nan)
         else:

@@ -28,7 +28,7 @@ from printability.motion._kernels import segments2 as _segments2
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["_deep_in_frame", "_deep_in_sweep", "_directions", "_move_normal", "_offsets",
-           "_sweep_frame", "swept_kernel"]
+           "_piece", "_pose", "_sweep_frame", "swept_kernel"]
 
 
 _DEEP = 1e-3
@@ -36,10 +36,10 @@ _DEEP = 1e-3
 
 
 @numba.njit(cache=True)
-def _deep_in_sweep(ex0, ey0, ex1, ey1, sx, sy, a, b, cx, cy, rc, rs, c, s, sc):  # pragma: no cover
-    """Whether the edge [e0, e1] (relative to the move's start) has a piece well inside the
-    ellipse (semi-axes ``a``, ``b``, centre ``cx``, ``cy``, rotation ``rc``, ``rs``) at
-    orientation ``c``, ``s`` scaled by ``sc`` swept from 0 to ``(sx, sy)``.
+def _deep_in_sweep(e0, e1, s, piece, c, sn, sc):  # pragma: no cover
+    """Whether the edge [e0, e1] (points relative to the move's start) has a piece well inside
+    the ellipse of ``piece`` (:func:`_piece`: its semi-axes, centre and rotation) at
+    orientation ``c``, ``sn`` scaled by ``sc`` swept from 0 to ``s``.
 
     In the frame where that ellipse is the unit disk the swept set is the set of points
     within 1 of a segment; an edge within ``1 - _DEEP`` of it has a piece longer than
@@ -47,14 +47,17 @@ def _deep_in_sweep(ex0, ey0, ex1, ey1, sx, sy, a, b, cx, cy, rc, rs, c, s, sc): 
     set, hence in every polygon around it, far beyond ``EPS``. A sufficient test of
     refusal, needing no half-plane: a rectangle holds the ellipse of its semi-axes.
     """
-    m00, m01, m10, m11, qx, qy, tx, ty = _sweep_frame(sx, sy, a, b, cx, cy, rc, rs, c, s, sc)
-    return _deep_in_frame(ex0, ey0, ex1, ey1, m00, m01, m10, m11, qx, qy, tx, ty)
+    frame = _sweep_frame(s[0], s[1], piece, c, sn, sc)
+    return _deep_in_frame(e0[0], e0[1], e1[0], e1[1], frame)
 
 
-@numba.njit(cache=True)
-def _sweep_frame(sx, sy, a, b, cx, cy, rc, rs, c, s, sc):  # pragma: no cover
-    """The frame of :func:`_deep_in_sweep`: its map ``M`` (row by row), the ellipse's centre
-    ``q`` and the segment's end ``t`` in it (one per footprint, shared by the edges tried)."""
+@numba.njit(cache=True, _nrt=False)
+def _sweep_frame(sx, sy, piece, c, s, sc):  # pragma: no cover
+    """The frame of :func:`_deep_in_sweep` for ``piece`` (:func:`_piece`): its map ``M`` (row
+    by row), the ellipse's centre ``q`` and the segment's end ``t`` in it (one per
+    footprint, shared by the edges tried), as the tuple ``(m00, m01, m10, m11, qx, qy, tx,
+    ty)``."""
+    _, a, b, cx, cy, rc, rs = piece
     # M = diag(1/a, 1/b) R(-rotation) R(-phi) / scale
     m00 = (rc * c - rs * s) / (a * sc)
     m01 = (rc * s + rs * c) / (a * sc)
@@ -67,9 +70,10 @@ def _sweep_frame(sx, sy, a, b, cx, cy, rc, rs, c, s, sc):  # pragma: no cover
     return m00, m01, m10, m11, qx, qy, tx, ty
 
 
-@numba.njit(cache=True)
-def _deep_in_frame(ex0, ey0, ex1, ey1, m00, m01, m10, m11, qx, qy, tx, ty):  # pragma: no cover
+@numba.njit(cache=True, _nrt=False)
+def _deep_in_frame(ex0, ey0, ex1, ey1, frame):  # pragma: no cover
     """:func:`_deep_in_sweep` given its :func:`_sweep_frame`."""
+    m00, m01, m10, m11, qx, qy, tx, ty = frame
     ax = m00 * ex0 + m01 * ey0
     ay = m10 * ex0 + m11 * ey0
     bx = m00 * ex1 + m01 * ey1
@@ -107,13 +111,16 @@ def _directions(cn, sn, cb, sb, p0x, p0y, p1x, p1y, cu, su, w):  # pragma: no co
 
 
 @numba.njit(cache=True, _nrt=False)
-def _offsets(kind, a, b, cx, cy, rc, rs, c0, s0, c1, s1, k, turning, scale, scaled, cu, su, w,
-             h):  # pragma: no cover
-    """Offsets ``h`` of the half-planes of an ellipse (kind 0) or rectangle (kind 1) swept.
+def _offsets(piece, pose, cu, su, w, h):  # pragma: no cover
+    """Offsets ``h`` of the half-planes of ``piece`` (:func:`_piece`: an ellipse, kind 0, or a
+    rectangle, 1) swept at the :func:`_pose` ``pose``, given the directions ``cu``, ``su``
+    and the move's extent ``w`` along them (:func:`_directions`).
 
     The swept_kernel's arithmetic, shared with the fused tests so that their
     half-planes are those of the ring, to the last bit.
     """
+    kind, a, b, cx, cy, rc, rs = piece
+    c0, s0, c1, s1, k, turning, scale, scaled = pose
     for j in range(len(cu)):
         u = cu[j]
         v = su[j]
@@ -138,29 +145,54 @@ def _offsets(kind, a, b, cx, cy, rc, rs, c0, s0, c1, s1, k, turning, scale, scal
         h[j] = hv + w[j]
 
 
+@numba.njit(cache=True, _nrt=False, inline="always")
+def _piece(pieces, p):  # pragma: no cover
+    """Piece ``p`` of ``pieces`` (a :class:`~printability.motion.records.Pieces`) as the
+    tuple ``(kind, a, b, cx, cy, rc, rs)`` of :func:`_offsets` and :func:`_sweep_frame`
+    (:func:`printability.motion.footprints._piece_params`'s)."""
+    return (pieces.kind[p], pieces.a[p], pieces.b[p], pieces.cx[p], pieces.cy[p],
+            pieces.rc[p], pieces.rs[p])
+
+
+@numba.njit(cache=True, _nrt=False, inline="always")
+def _pose(angles, q, scale, m):  # pragma: no cover
+    """The orientation of candidate ``q`` of ``angles`` (an
+    :class:`~printability.motion.records.Angles`) and the scale of segment ``m``
+    (``scale`` empty: 1), as :func:`_offsets` reads them: ``(c0, s0, c1, s1, k, turning,
+    scale, scaled)``."""
+    turning = len(angles.k) > 0
+    scaled = len(scale) > 0
+    return (angles.c0[q], angles.s0[q], angles.c1[q] if turning else 0.0,
+            angles.s1[q] if turning else 0.0, angles.k[q] if turning else 1.0, turning,
+            scale[m] if scaled else 1.0, scaled)
+
+
 @numba.njit(cache=True)
-def swept_kernel(kind, a, b, cx, cy, rc, rs, p0, p1, cn, sn, cb, sb, c0, s0, c1, s1, k, scale,
-                 det, cu, su, h, ring):  # pragma: no cover
-    """Half-plane offsets ``h`` and ring of an ellipse (kind 0) or rectangle (kind 1) swept.
+def swept_kernel(piece, moves, normals, dirs, angles, planes, ring):  # pragma: no cover
+    """Half-plane offsets and ring of ``piece`` (``(kind, a, b, cx, cy, rc, rs)``: an
+    ellipse, kind 0, or a rectangle, 1, :func:`_piece`) swept along each of ``moves`` at
+    ``angles`` (row i at row i).
 
     The same arithmetic, in the same order, as the numpy path of
     :func:`printability.motion.footprints.swept_rings` (so the same rings to
     the last bit), fused into one pass: numpy makes a dozen (n, 64)
-    temporaries per call, which cost more than the arithmetic. ``c1``/``s1``
-    (the end orientation, turning moves) are used when ``k`` is non-empty,
-    ``scale`` when non-empty; the directions ``cu``, ``su`` are filled from
-    the move's normal (``cn``, ``sn``) and the base directions (``cb``, ``sb``).
+    temporaries per call, which cost more than the arithmetic. The end orientations
+    (turning moves) are used when ``angles.k`` is non-empty, ``moves.scale`` when
+    non-empty; ``planes`` (``cu``, ``su``, ``h``, each (n, d)) is filled: the directions
+    from the moves' normals ``normals`` (``cn``, ``sn``) and the base directions of
+    ``dirs`` (a :class:`~printability.motion.records.Directions`), and the offsets.
     """
+    cu, su, h = planes
+    cn, sn = normals
+    p0 = moves.p0
+    p1 = moves.p1
+    det = dirs.det
     n, d = cu.shape
-    turning = len(k) > 0
-    scaled = len(scale) > 0
     w = np.empty(d)
     for i in range(n):
-        _directions(cn[i], sn[i], cb, sb, p0[i, 0], p0[i, 1], p1[i, 0], p1[i, 1], cu[i], su[i],
-                    w)
-        _offsets(kind, a, b, cx, cy, rc, rs, c0[i], s0[i], c1[i] if turning else 0.0,
-                 s1[i] if turning else 0.0, k[i] if turning else 1.0, turning,
-                 scale[i] if scaled else 1.0, scaled, cu[i], su[i], w, h[i])
+        _directions(cn[i], sn[i], dirs.cb, dirs.sb, p0[i, 0], p0[i, 1], p1[i, 0], p1[i, 1],
+                    cu[i], su[i], w)
+        _offsets(piece, _pose(angles, i, moves.scale, i), cu[i], su[i], w, h[i])
         for j in range(d):
             jn = j + 1 if j + 1 < d else 0
             ring[i, j, 0] = (h[i, j] * su[i, jn] - h[i, jn] * su[i, j]) / det

@@ -81,6 +81,7 @@ from printability.errors import InputError
 from printability.motion._bead_boundary import _boundary, _green
 from printability.motion._bead_polygons import _grid, _polygons
 from printability.motion._kernels import cell_of as _cell
+from printability.motion.records import BeadPolygons, Beads, CellGrid, HalfPlanes
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
@@ -124,9 +125,8 @@ class BeadUnion:
     k, phase : ndarray
         Each polygon's edges per half turn and the angle (radians, clockwise) from its
         left side's normal to the next plane's (the module docs).
-    grid : tuple
-        ``(start, items, x0, y0, cell, nx, ny)``: the polygons whose box meets
-        cell ``iy·nx + ix``.
+    grid : CellGrid
+        The polygons whose box meets each cell.
     ex0, ey0, ex1, ey1 : ndarray
         Edges of ∂G'.
     beyond : ndarray
@@ -154,7 +154,7 @@ class BeadUnion:
     box: np.ndarray
     k: np.ndarray
     phase: np.ndarray
-    grid: tuple
+    grid: CellGrid
     ex0: np.ndarray
     ey0: np.ndarray
     ex1: np.ndarray
@@ -166,6 +166,11 @@ class BeadUnion:
     @property
     def is_empty(self) -> bool:
         return len(self.ax) == 0
+
+    @property
+    def half_planes(self) -> HalfPlanes:
+        """The polygons' half-planes, as the kernels take them."""
+        return HalfPlanes(self.off, self.ux, self.uy, self.h)
 
     def polygons(self, index: np.ndarray | None = None) -> np.ndarray:
         """The bead polygons (shapely), all or those of ``index``."""
@@ -221,15 +226,17 @@ def bead_union(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, *, grow: floa
         zi = np.zeros(1, np.int64)
         return BeadUnion(z, z, z, z, z, zi, z, z, z, z, z, np.zeros((0, 4)),
                          np.zeros(0, np.int64), z,
-                         (np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0, 1, 1),
+                         CellGrid(np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0,
+                                  1, 1),
                          z, z, z, z, z, 0.0, 0.0)
     off, ux, uy, h, vx, vy, box, k, phase = _polygons(ax, ay, bx, by, rho, rmax)
     grid = _grid(box)
+    beads = Beads(ax, ay, bx, by, rho)
+    polys = BeadPolygons(HalfPlanes(off, ux, uy, h), vx, vy, box, k, phase)
     parts: dict[int, np.ndarray] = {}
 
     def run(part: slice) -> None:
-        parts[part.start] = _boundary(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, k,
-                                      phase, *grid, _EPS, part.start, part.stop)
+        parts[part.start] = _boundary(beads, polys, grid, _EPS, part.start, part.stop)
 
     shared_out(run, np.ones(len(ax)), workers, min_items=_PARALLEL_MIN)
     edges = parts[0] if len(parts) == 1 else np.concatenate([parts[p] for p in sorted(parts)])
@@ -247,7 +254,7 @@ def union_contains_xy(u: BeadUnion, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     y = np.ascontiguousarray(y, dtype=float).reshape(-1)
     out = np.zeros(len(x), dtype=bool)
     if len(u.ax):
-        _contains(u.off, u.ux, u.uy, u.h, *u.grid, x, y, out)
+        _contains(u.half_planes, u.grid, x, y, out)
     return out
 
 
@@ -295,16 +302,24 @@ def _whole(u: BeadUnion):
 
 
 @numba.njit(cache=True, nogil=True)
-def _contains(off, ux, uy, h, start, items, x0, y0, cell, nx, ny, x, y, out):  # pragma: no cover
+def _contains(polygons, cells, x, y, out):  # pragma: no cover
     """Points in any bead polygon (closed), through the grid."""
     for p in range(len(x)):
-        out[p] = in_polygons(x[p], y[p], off, ux, uy, h, start, items, x0, y0, cell, nx, ny)
+        out[p] = in_polygons(x[p], y[p], polygons, cells)
 
 
 @numba.njit(cache=True, nogil=True)
-def in_polygons(px, py, off, ux, uy, h, start, items, x0, y0, cell, nx, ny):  # pragma: no cover
-    """Whether the point lies in one of the bead polygons (closed): a point of G'."""
-    c = _cell(py, y0, cell, ny) * nx + _cell(px, x0, cell, nx)
+def in_polygons(px, py, polygons, cells):  # pragma: no cover
+    """Whether the point lies in one of the bead polygons (closed): a point of G'.
+
+    ``polygons`` is a :class:`~printability.motion.records.HalfPlanes`, ``cells`` the
+    :class:`~printability.motion.records.CellGrid` listing them.
+    """
+    off, ux, uy, h = polygons
+    c = _cell(py, cells.y0, cells.cell, cells.ny) * cells.nx \
+        + _cell(px, cells.x0, cells.cell, cells.nx)
+    start = cells.start
+    items = cells.items
     for q in range(start[c], start[c + 1]):
         i = items[q]
         inside = True

@@ -24,6 +24,10 @@ re-exported here (import from this module):
 * :mod:`printability.motion._first_fits` — the fused planner kernel
   (:func:`first_fits`).
 
+The kernels take their arrays grouped in the records of
+:mod:`printability.motion.records` (the nozzle's pieces, the moves, the orientations, ∂G's
+grid, the point locator).
+
 Conventions: lengths in mm. The helpers called per footprint or per edge only
 read and write arrays they are given: they are compiled without the runtime
 (``_nrt=False``), else every call increfs and decrefs each array argument

@@ -38,6 +38,7 @@ from printability.motion.fastfit import (
     locator,
     swept_kernel,
 )
+from printability.motion.records import Angles, Directions, Groups, Moves, Pieces
 from printability.nozzle import Nozzle
 
 __all__ = ["ConvexPiece", "convex_pieces", "fits", "grown_target", "swept_footprints",
@@ -204,11 +205,12 @@ def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
         su = np.empty((n, directions))
         h = np.empty((n, directions))
         ring = np.empty((n, directions + 1, 2))
-        kind, a, b, cx, cy, rc, rs = _piece_params(piece)
-        swept_kernel(kind, a, b, cx, cy, rc, rs,
-                     np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
-                     normal_c, normal_s, np.cos(base), np.sin(base),
-                     c0, s0, c1, s1, k, sc, det, cu, su, h, ring)
+        moves = Moves(np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
+                      sc)
+        cb, sb, _ = _base_directions(directions)
+        dirs = Directions(cb, sb, det, _order(directions))
+        swept_kernel(_piece_params(piece), moves, (normal_c, normal_s), dirs,
+                     Angles(c0, s0, c1, s1, k), (cu, su, h), ring)
         return ring, cu, su, h
     cn, sn = normal_c[:, None], normal_s[:, None]
     cb, sb = np.cos(base)[None, :], np.sin(base)[None, :]
@@ -261,8 +263,8 @@ def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1
         return np.ones(0, dtype=bool)
     if fast and _fused(pieces):
         every = np.arange(n)
-        return _first_fit(target, pieces, p0, p1, scale, every, angle, angle_end, every,
-                          every + 1, workers=workers) >= 0
+        return _first_fit(target, pieces, (p0, p1, scale), every, angle, every, every + 1,
+                          angle_end=angle_end, workers=workers) >= 0
     return _fits_rings(target, pieces, p0, p1, angle, angle_end=angle_end, scale=scale,
                        fast=fast)
 
@@ -309,11 +311,11 @@ def _base_directions(directions: int) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 @functools.lru_cache(maxsize=32)
-def _pieces_arrays(pieces: tuple[ConvexPiece, ...]) -> tuple[np.ndarray, ...]:
-    """:func:`_piece_params` of every piece, as arrays (kind, a, b, cx, cy, rc, rs)."""
+def _pieces_arrays(pieces: tuple[ConvexPiece, ...]) -> Pieces:
+    """:func:`_piece_params` of every piece, as the kernels' arrays."""
     params = [_piece_params(p) for p in pieces]
-    out = (np.array([q[0] for q in params], dtype=np.int64),
-           *(np.array([q[j] for q in params], dtype=float) for j in range(1, 7)))
+    out = Pieces(np.array([q[0] for q in params], dtype=np.int64),
+                 *(np.array([q[j] for q in params], dtype=float) for j in range(1, 7)))
     for v in out:
         v.setflags(write=False)
     return out
@@ -324,13 +326,17 @@ def _fused(pieces: Sequence[ConvexPiece]) -> bool:
     return all(p.kind in ("ellipse", "rect") for p in pieces)
 
 
-def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
-               directions: int = 64, *, gseg=None, trig=None, workers: int = 1) -> np.ndarray:
+_DIRECTIONS = 64
+"""Half-planes of a swept footprint (as :func:`swept_rings` makes them by default)."""
+
+
+def _first_fit(target, pieces, segments, seg, angle, gpos, gend, *, angle_end=None, gseg=None,
+               trig=None, workers: int = 1) -> np.ndarray:
     """Per group of candidates, the index of the first that fits (-1: none).
 
-    Candidate ``q`` is segment ``seg[q]`` (of ``p0``, ``p1``, ``scale``) swept at
-    ``angle[q]`` (turning to ``angle_end[q]``); group ``g`` holds candidates
-    ``gpos[g] … gend[g] - 1``, tried in order. With ``gseg``, every candidate of
+    ``segments`` is ``(p0, p1, scale)`` (``scale`` None: 1). Candidate ``q`` is segment
+    ``seg[q]`` swept at ``angle[q]`` (turning to ``angle_end[q]``); group ``g`` holds
+    candidates ``gpos[g] … gend[g] - 1``, tried in order. With ``gseg``, every candidate of
     group ``g`` is swept along segment ``gseg[g]`` instead (groups may share
     candidates); ``trig`` is ``(cos, sin)`` of the angles in radians when already
     known. The answer per candidate is :func:`fits`'s: footprints ∂G grazes go
@@ -342,28 +348,17 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
     result = np.full(ngroups, -1, dtype=np.int64)
     if ngroups == 0:
         return result
-    p0 = np.ascontiguousarray(p0, dtype=float)
-    p1 = np.ascontiguousarray(p1, dtype=float)
-    cb, sb, det = _base_directions(directions)
-    if trig is None:
-        c0, s0, c1, s1, k = _angle_trig(angle, angle_end, len(angle))
-    else:
-        c0, s0 = trig
-        c1 = s1 = k = _EMPTY
-    sc = _EMPTY if scale is None else np.ascontiguousarray(
-        np.broadcast_to(np.asarray(scale, dtype=float), (len(p0),)))
-    kind, pa, pb, pcx, pcy, prc, prs = _pieces_arrays(tuple(pieces))
+    moves, angles, dirs = _kernel_inputs(segments, angle, angle_end, trig)
     if gseg is None:
         gseg = np.zeros(0, dtype=np.int64)
         seg = np.ascontiguousarray(seg, dtype=np.int64)
     else:
         gseg = np.ascontiguousarray(gseg, dtype=np.int64)
         seg = np.zeros(0, dtype=np.int64)
-    grid = boundary_grid(target)
-    loc = locator(target)
+    fixed = (_pieces_arrays(tuple(pieces)), moves, angles, seg, dirs, boundary_grid(target),
+             locator(target))
     gpos = np.array(gpos, dtype=np.int64)
     gend = np.ascontiguousarray(gend, dtype=np.int64)
-    order = _order(directions)
     groups = np.arange(ngroups)
     while groups.size:
         out_idx = np.empty(groups.size, dtype=np.int64)
@@ -371,10 +366,8 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
         g_seg = gseg[groups] if len(gseg) else gseg
         g_pos = gpos[groups]
         g_end = gend[groups]
-        run = functools.partial(
-            _first_fits_part, (kind, pa, pb, pcx, pcy, prc, prs, p0, p1, sc, seg),
-            g_seg, (c0, s0, c1, s1, k), g_pos, g_end, (cb, sb, det, *grid, *loc, EPS, order),
-            out_idx, out_state)
+        run = functools.partial(_first_fits_part, fixed, (g_seg, g_pos, g_end),
+                                (out_idx, out_state))
         shared_out(run, g_end - g_pos, workers, min_items=_PARALLEL_MIN)
         fit = out_state == 1
         result[groups[fit]] = out_idx[fit]
@@ -384,21 +377,7 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
         # ∂G grazes these footprints: the rings of the same half-planes, decided exactly
         q = out_idx[und]
         m = gseg[groups[und]] if len(gseg) else seg[q]
-        ok = np.ones(q.size, dtype=bool)
-        cn, sn = _move_normals(p0[m], p1[m])
-        for piece in pieces:
-            kp, a, b, cx, cy, rc, rs = _piece_params(piece)
-            nq = q.size
-            cu = np.empty((nq, directions))
-            su = np.empty((nq, directions))
-            h = np.empty((nq, directions))
-            ring = np.empty((nq, directions + 1, 2))
-            turning = len(k) > 0
-            swept_kernel(kp, a, b, cx, cy, rc, rs, p0[m], p1[m], cn, sn, cb, sb, c0[q],
-                         s0[q], c1[q] if turning else _EMPTY, s1[q] if turning else _EMPTY,
-                         k[q] if turning else _EMPTY, sc[m] if len(sc) else _EMPTY, det, cu,
-                         su, h, ring)
-            ok &= covers_rings(target, ring, cu, su, h)
+        ok = _grazed_fit(target, pieces, fixed, q, m)
         result[groups[und[ok]]] = q[ok]
         rest = und[~ok]
         gpos[groups[rest]] = q[~ok] + 1
@@ -406,12 +385,56 @@ def _first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
     return result
 
 
+def _kernel_inputs(segments, angle, angle_end, trig) -> tuple[Moves, Angles, Directions]:
+    """The records :func:`first_fits` reads: the segments, the candidates' orientations
+    (``trig``: their cos/sin when known) and the base directions."""
+    p0, p1, scale = segments
+    p0 = np.ascontiguousarray(p0, dtype=float)
+    p1 = np.ascontiguousarray(p1, dtype=float)
+    cb, sb, det = _base_directions(_DIRECTIONS)
+    if trig is None:
+        c0, s0, c1, s1, k = _angle_trig(angle, angle_end, len(angle))
+    else:
+        c0, s0 = trig
+        c1 = s1 = k = _EMPTY
+    sc = _EMPTY if scale is None else np.ascontiguousarray(
+        np.broadcast_to(np.asarray(scale, dtype=float), (len(p0),)))
+    return (Moves(p0, p1, sc), Angles(c0, s0, c1, s1, k),
+            Directions(cb, sb, det, _order(_DIRECTIONS)))
 
-def _first_fits_part(head, g_seg, trig, g_pos, g_end, tail, out_idx, out_state,
-                     part: slice) -> None:
-    """:func:`first_fits` on the groups of ``part`` (their answers in ``out_*[part]``)."""
-    first_fits(*head, g_seg[part] if len(g_seg) else g_seg, *trig, g_pos[part], g_end[part],
-               *tail, out_idx[part], out_state[part])
+
+def _grazed_fit(target, pieces, fixed, q, m) -> np.ndarray:
+    """Whether candidates ``q`` (on segments ``m``), which ∂G grazes, fit: the rings of the
+    same half-planes (every piece of ``pieces``), decided by :func:`covers_rings`."""
+    _, moves, angles, _, dirs, _, _ = fixed
+    p0, p1, sc = moves
+    c0, s0, c1, s1, k = angles
+    turning = len(k) > 0
+    sub_moves = Moves(p0[m], p1[m], sc[m] if len(sc) else _EMPTY)
+    sub_angles = Angles(c0[q], s0[q], c1[q] if turning else _EMPTY,
+                        s1[q] if turning else _EMPTY, k[q] if turning else _EMPTY)
+    normals = _move_normals(p0[m], p1[m])
+    ok = np.ones(q.size, dtype=bool)
+    for piece in pieces:
+        nq = q.size
+        cu = np.empty((nq, _DIRECTIONS))
+        su = np.empty((nq, _DIRECTIONS))
+        h = np.empty((nq, _DIRECTIONS))
+        ring = np.empty((nq, _DIRECTIONS + 1, 2))
+        swept_kernel(_piece_params(piece), sub_moves, normals, dirs, sub_angles, (cu, su, h),
+                     ring)
+        ok &= covers_rings(target, ring, cu, su, h)
+    return ok
+
+
+def _first_fits_part(fixed, groups, out, part: slice) -> None:
+    """:func:`first_fits` on the groups of ``part`` (their answers in ``out[…][part]``)."""
+    pieces, moves, angles, seg, dirs, grid, loc = fixed
+    g_seg, g_pos, g_end = groups
+    out_idx, out_state = out
+    first_fits(pieces, moves, angles,
+               Groups(seg, g_seg[part] if len(g_seg) else g_seg, g_pos[part], g_end[part]),
+               dirs, grid, loc, EPS, out_idx[part], out_state[part])
 
 
 def grown_target(target: BaseGeometry, tolerance: float) -> BaseGeometry:

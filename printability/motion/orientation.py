@@ -25,22 +25,27 @@ G):
    in pieces of up to twice ``split_length``, then the pieces that still fit
    nowhere halved (down to ``split_length``); what fits nowhere then is
    dropped, and reported; the pieces next to a split move's longest one then take its
-   orientation where it fits (:func:`_align_pieces`);
+   orientation where it fits (:func:`~printability.motion._passes.align_pieces`);
 4. along each path, the admissible orientations (of a few per whole move: those laying
    the planned width, the grid, fixed angles to the motion) whose turns cost least,
    a turn made standing still (larger than ``fold_max``, or not admissible during
    the move) and a reversal costing extra (:func:`~printability.motion.turns.least_turning`);
 5. which turns are made during a move or a piece of a split one (``Plan.fold``,
-   ``Plan.piece_fold``: :func:`_folds`, with the turning footprint tested in steps of
-   at most :data:`_TURN_STEP`, :func:`~printability.motion.turns.turning_fits`).
+   ``Plan.piece_fold``: :func:`~printability.motion._passes.fold_flags`, with the turning
+   footprint tested in steps of at most :data:`~printability.motion.turns.TURN_STEP`,
+   :func:`~printability.motion.turns.turning_fits`).
+
+The moves and what they are tested against travel as one
+:class:`~printability.motion.plan.PlanContext`; the result is a
+:class:`~printability.motion.plan.Plan`.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 from shapely.geometry.base import BaseGeometry
@@ -48,12 +53,15 @@ from shapely.geometry.base import BaseGeometry
 from printability._arrays import take_rows
 from printability.machine import Machine
 from printability.motion import footprints as fp
-from printability.motion._plan_kernels import (
-    chain_nearest,
-    merge_pieces,
-    smooth_chain,
-    width_picks,
+from printability.motion._passes import (
+    align_pieces,
+    drop_side_pieces,
+    fold_flags,
+    other_solution,
+    reachable,
+    smooth,
 )
+from printability.motion._plan_kernels import chain_nearest, width_picks
 from printability.motion._search import _cost_order, _search_ordered, _split_many, _tried
 from printability.motion.footprints import (
     ConvexPiece,
@@ -62,7 +70,8 @@ from printability.motion.footprints import (
     swept_footprints,
     swept_rings,
 )
-from printability.motion.turns import least_turning, turning_fits
+from printability.motion.plan import OrientedPiece, PieceMap, Plan, PlanContext, piece_rows_of
+from printability.motion.turns import least_turning
 from printability.nozzle import Nozzle
 
 __all__ = [
@@ -71,10 +80,12 @@ __all__ = [
     "OrientedPiece",
     "PieceMap",
     "Plan",
+    "PlanContext",
     "candidate_orientations",
     "convex_pieces",
     "fits",
     "piece_rows_of",
+    "plan_context",
     "plan_orientations",
     "swept_footprints",
     "swept_rings",
@@ -84,7 +95,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class OrientationOptions:
-    """Tolerances of the orientation search.
+    """Tolerances and policies of the orientation search.
 
     Attributes
     ----------
@@ -108,13 +119,25 @@ class OrientationOptions:
         standing still.
     side_piece_widths
         Pieces of a split move that need a turn of their own and are at most this
-        many planned bead widths long are left out (see :func:`_drop_side_pieces`):
+        many planned bead widths long are left out (see
+        :func:`~printability.motion._passes.drop_side_pieces`):
         a turn standing still costs more print time than such a fleck is worth.
         0 keeps every piece that fits.
     wider_interior
         Whether the moves :func:`plan_orientations` is told are interior (inner walls,
         infill) may lay a bead wider than planned where it fits, rather than turn at
         every change of direction (False: every move lays the planned width).
+    narrow_beads
+        A round nozzle lays the planned width where the plan is narrower than
+        the orifice (the slicer's own model of *its* nozzle: bridges and gap
+        fill are under-extruded on purpose), so its footprint there is the
+        disk of the planned width. Only true for the nozzle the file was
+        sliced for (or a smaller one); otherwise the whole orifice counts (the
+        post-processor sets it from the job).
+    fold_pieces
+        Whether the turns into the pieces of split moves may be made during them too
+        (``Plan.piece_fold``; with ``chained`` given; the post-processor sets it from the
+        feed policy: only where F is the XY feed).
     """
 
     tolerance: float = 1e-3
@@ -125,122 +148,8 @@ class OrientationOptions:
     fold_max: float = 20.0
     side_piece_widths: float = 1.0
     wider_interior: bool = True
-
-
-@dataclass(frozen=True)
-class OrientedPiece:
-    """One printable piece of a move: from ``t0`` to ``t1`` (fractions of the move) at ``angle``."""
-
-    t0: float
-    t1: float
-    angle: float
-
-
-class PieceMap(Mapping):
-    """Split moves → their printable pieces (:class:`OrientedPiece` lists; empty: dropped).
-
-    A read-only mapping over the pieces held as arrays ``rows = (move, t0, t1, angle)``
-    sorted by move (:attr:`Plan.piece_rows`), with ``keys`` the split moves in order. A
-    move's list is made when first read: the post-processor's own steps (the rewrite,
-    the reports) read the arrays, and making every object up front cost the calibration
-    cube about 20 ms (1.5 µs per frozen dataclass, 15 000 pieces).
-    """
-
-    __slots__ = ("_made", "_rows", "_span")
-
-    def __init__(self, keys: np.ndarray, rows: tuple) -> None:
-        keys = np.asarray(keys, np.int64)
-        move = np.asarray(rows[0], np.int64)
-        lo = np.searchsorted(move, keys, "left").tolist()
-        hi = np.searchsorted(move, keys, "right").tolist()
-        self._span = dict(zip(keys.tolist(), zip(lo, hi, strict=True), strict=True))
-        self._rows = rows
-        self._made: dict[int, list[OrientedPiece]] = {}
-
-    def __getitem__(self, move: int) -> list[OrientedPiece]:
-        got = self._made.get(move)
-        if got is None:
-            lo, hi = self._span[move]
-            _, t0, t1, angle = self._rows
-            got = list(map(OrientedPiece, t0[lo:hi].tolist(), t1[lo:hi].tolist(),
-                           angle[lo:hi].tolist()))
-            self._made[move] = got
-        return got
-
-    def __contains__(self, move: object) -> bool:
-        return move in self._span
-
-    def __iter__(self) -> Iterator[int]:
-        return iter(self._span)
-
-    def __len__(self) -> int:
-        return len(self._span)
-
-    def __repr__(self) -> str:
-        return f"PieceMap({len(self)} moves, {len(self._rows[0])} pieces)"
-
-
-@dataclass(frozen=True, eq=False)
-class Plan:
-    """The orientation of every move of one layer.
-
-    Attributes
-    ----------
-    angle
-        Orientation per move, degrees (NaN where the whole move is dropped or split).
-    pieces
-        For split moves (index → printable pieces, possibly empty = dropped): a dict, or
-        the planner's :class:`PieceMap`.
-    width
-        Bead width laid at the chosen orientation, mm (NaN if dropped/split).
-    fold
-        (n,) True where the turn from the previous move's orientation (its last piece's
-        when it is split) is made during the move (checked with the turning footprint).
-    piece_rows
-        The pieces of ``pieces`` as arrays ``(move, t0, t1, angle)``, by move and then
-        as listed (empty lists have no row); built from ``pieces`` when not given.
-    piece_fold
-        Per row of ``piece_rows``, True where the turn into the piece (from the previous
-        piece of its move, or from the previous move for its first piece) is made during
-        the piece (checked with the turning footprint); None: never.
-    """
-
-    angle: np.ndarray
-    width: np.ndarray
-    pieces: Mapping[int, list[OrientedPiece]] = field(default_factory=dict)
-    fold: np.ndarray | None = None
-    piece_rows: tuple | None = None
-    piece_fold: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if self.piece_rows is None:
-            object.__setattr__(self, "piece_rows", piece_rows_of(self.pieces))
-
-    @property
-    def split_moves(self) -> int:
-        return sum(1 for p in self.pieces.values() if p)
-
-    @property
-    def dropped_moves(self) -> int:
-        return sum(1 for p in self.pieces.values() if not p)
-
-    def dropped_length(self, lengths: np.ndarray) -> float:
-        """Length of the dropped parts of the moves, mm."""
-        total = 0.0
-        for i, pieces in self.pieces.items():
-            kept = sum(p.t1 - p.t0 for p in pieces)
-            total += float(lengths[i]) * max(0.0, 1.0 - kept)
-        return total
-
-
-def piece_rows_of(seg_pieces: Mapping) -> tuple:
-    """The pieces of a ``{move: [OrientedPiece, …]}`` dict as arrays ``(move, t0, t1,
-    angle)``, by move and then as listed (dropped moves, with no piece, have no row)."""
-    keys = sorted(seg_pieces)
-    n = [len(seg_pieces[k]) for k in keys]
-    flat = [p for k in keys for p in seg_pieces[k]]
-    return (np.repeat(np.asarray(keys, np.int64), n), np.array([p.t0 for p in flat], float),
-            np.array([p.t1 for p in flat], float), np.array([p.angle for p in flat], float))
+    narrow_beads: bool = False
+    fold_pieces: bool = True
 
 
 @functools.lru_cache(maxsize=32)
@@ -276,17 +185,6 @@ def candidate_orientations(machine: Machine, nozzle: Nozzle, *, step: float) -> 
     n = max(1, math.ceil(span / step - 1e-9))
     full = span >= (period or 360.0) - 1e-9
     return lo + np.arange(n + (0 if full else 1)) * (span / n)
-
-
-def _reachable(phi: np.ndarray, machine: Machine, period: float) -> np.ndarray:
-    """Whether some equivalent of each orientation lies within the axis limits."""
-    if not machine.has_rotary:
-        return np.isclose(np.mod(phi + 1e-9, period or 360.0), 1e-9, atol=1e-6)
-    lo, hi = machine.angle_min, machine.angle_max
-    if hi - lo >= period - 1e-9:
-        return np.ones(phi.shape, dtype=bool)
-    k = np.ceil((lo - phi) / period - 1e-12)
-    return phi + k * period <= hi + 1e-9
 
 
 @functools.lru_cache(maxsize=8)
@@ -392,7 +290,7 @@ def preferred_orientations(direction: np.ndarray, widths: np.ndarray, nozzle: No
     for i in range(n):
         best = None
         for c in (c1[i], c2[i], c1[i] + 180.0, c2[i] + 180.0):
-            if reach and not _reachable(np.array([c]), machine, per)[0]:
+            if reach and not reachable(np.array([c]), machine, per)[0]:
                 continue
             near = c + per * round((prev - c) / per)
             if best is None or abs(near - prev) < abs(best - prev):
@@ -418,8 +316,6 @@ def plan_orientations(
     previous: float = 0.0,
     prepared_target: BaseGeometry | None = None,
     chained: np.ndarray | None = None,
-    narrow_beads: bool = False,
-    fold_pieces: bool = True,
     interior: np.ndarray | None = None,
     workers: int = 1,
 ) -> Plan:
@@ -437,26 +333,18 @@ def plan_orientations(
         What prints it. An XY machine or a round nozzle never turns: the
         only orientation is 0.
     options
-        Tolerances (see :class:`OrientationOptions`).
+        Tolerances and policies (see :class:`OrientationOptions`; ``narrow_beads``,
+        ``fold_pieces`` among them).
     previous
         Orientation before the first move, degrees.
     prepared_target
         G already grown by the tolerance and prepared (to share between calls).
-    narrow_beads
-        A round nozzle lays the planned width where the plan is narrower than
-        the orifice (the slicer's own model of *its* nozzle: bridges and gap
-        fill are under-extruded on purpose), so its footprint there is the
-        disk of the planned width. Only true for the nozzle the file was
-        sliced for (or a smaller one); otherwise the whole orifice counts.
     chained
         (n,) True where a move starts where the previous one ended, without
         anything in between: the turn to its orientation may then be made
         *during* it when the footprint turning along the move still fits
         (``Plan.fold``); otherwise the nozzle turns standing still, not
         extruding.
-    fold_pieces
-        Whether the turns into the pieces of split moves may be made during them too
-        (``Plan.piece_fold``; with ``chained`` given).
     interior
         (n,) True where the bead's edges are not the part's surface (inner walls, infill:
         :data:`gcode.dialects.INTERIOR_CATEGORIES`): such a move may lay a bead *wider*
@@ -472,312 +360,138 @@ def plan_orientations(
     -------
     Plan
     """
+    ctx = plan_context(p0, p1, widths, target, nozzle, machine, options=options,
+                       prepared_target=prepared_target, workers=workers)
+    n = len(ctx.p0)
+    if interior is not None:
+        interior = np.broadcast_to(np.asarray(interior, dtype=bool), (n,))
+    turns = machine.turns(nozzle)
+    c1 = c2 = None
+    if turns:
+        angle, c1, c2 = preferred_orientations(ctx.direction, ctx.widths, nozzle, machine,
+                                               previous=previous, return_candidates=True)
+    else:
+        angle = np.zeros(n)
+    ok = fp.fits(ctx.target, ctx.pieces, ctx.p0, ctx.p1, angle, scale=ctx.scale,
+                 workers=workers)
+    pieces: Mapping[int, list[OrientedPiece]] = {}
+    rows = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0))
+    bad = np.flatnonzero(~ok)
+    if bad.size:
+        rows, pieces = _search_refused(ctx, angle, (c1, c2), bad, previous=previous,
+                                       machine=machine, nozzle=nozzle)
+    if turns and n > 1:
+        angle = smooth(ctx, angle, bad, c1, c2, previous=previous, machine=machine)
+        if machine.covers_period(ctx.per):
+            angle = least_turning(angle, rows, c1, c2, ctx, previous, chained,
+                                  interior=interior if options.wider_interior else None)
+    fold = np.zeros(n, dtype=bool)
+    piece_fold = np.zeros(len(rows[0]), dtype=bool)
+    if turns and chained is not None and n > 0:
+        fold, piece_fold = fold_flags(ctx, angle, rows, np.asarray(chained, bool),
+                                      fold_pieces=options.fold_pieces)
+    width = np.full(n, np.nan)
+    good = ~np.isnan(angle)
+    rel = np.mod(angle[good] - ctx.direction[good], 360.0)
+    width[good] = np.interp(rel, np.append(ctx.beta, 360.0), np.append(ctx.wtab, ctx.wtab[0]))
+    return Plan(angle=angle, width=width, pieces=pieces, fold=fold, piece_rows=rows,
+                piece_fold=piece_fold)
+
+
+def plan_context(p0: np.ndarray, p1: np.ndarray, widths: np.ndarray, target: BaseGeometry,
+                 nozzle: Nozzle, machine: Machine, *,
+                 options: OrientationOptions = OrientationOptions(),
+                 prepared_target: BaseGeometry | None = None,
+                 workers: int = 1) -> PlanContext:
+    """The :class:`~printability.motion.plan.PlanContext` of :func:`plan_orientations` (its
+    parameters of the same names)."""
     p0 = np.asarray(p0, dtype=float).reshape(-1, 2)
     p1 = np.asarray(p1, dtype=float).reshape(-1, 2)
     n = len(p0)
     widths = np.broadcast_to(np.asarray(widths, dtype=float), (n,))
-    if interior is not None:
-        interior = np.broadcast_to(np.asarray(interior, dtype=bool), (n,))
     if prepared_target is None:
         prepared_target = fp.grown_target(target, options.tolerance)
-    pieces = fp.convex_pieces(nozzle)
-    period = nozzle.symmetry_period
-    turns = machine.turns(nozzle)
-    per = period if turns else 360.0
     direction = np.degrees(np.arctan2(p1[:, 1] - p0[:, 1], p1[:, 0] - p0[:, 0]))
     scale = None
-    if nozzle.is_round and narrow_beads:
+    if nozzle.is_round and options.narrow_beads:
         d = 2.0 * nozzle.footprints[0].a
         scale = np.where(np.isfinite(widths), np.minimum(1.0, widths / d), 1.0)
-    if turns:
-        angle, c1, c2 = preferred_orientations(direction, widths, nozzle, machine,
-                                               previous=previous, return_candidates=True)
-    else:
-        angle = np.zeros(n)
-
-    ok = fp.fits(prepared_target, pieces, p0, p1, angle, scale=scale, workers=workers)
-    result_pieces: Mapping[int, list[OrientedPiece]] = {}
-    rows = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0))
-    bad = np.flatnonzero(~ok)
     beta, wtab = width_table(nozzle)
-    if bad.size:
-        cands = candidate_orientations(machine, nozzle, step=options.search_step) if turns \
-            else np.array([0.0])
-        # turn least relative to the preferred chain (smooth along curves); the
-        # smoothing pass below re-chains the orientations the search chose
-        prev_bad = np.concatenate([[previous], angle[:-1]])[bad]
-        todo = np.arange(bad.size)  # the bad moves the search and the split still take
-        exact = None
-        if turns:
-            # The other orientation laying the planned width, before the grid's (10° apart:
-            # they miss the width by up to a few hundredths of a mm, and a wider one
-            # cannot fit where G is just the planned bead): first on the whole move, then
-            # with the chain's in the split's search for the middle to keep.
-            alt = _other_solution(angle[bad], c1[bad], c2[bad], per, machine)
-            other = np.flatnonzero(alt != angle[bad])
-            if other.size:
-                tried = bad[other]
-                hit = fp.fits(prepared_target, pieces, take_rows(p0, tried), take_rows(p1, tried),
-                              alt[other], scale=None if scale is None else scale[tried],
-                              workers=workers)
-                angle[bad[other[hit]]] = alt[other[hit]]
-                todo = np.setdiff1d(todo, other[hit], assume_unique=True)
-            # taken to the grid's range, then unwrapped near the previous orientation as
-            # the grid is (_cost_terms): an exact orientation that is a grid one (a turn
-            # of 90°, say) gets the same value, so pieces at it join
-            e = cands[0] + np.mod(np.column_stack([angle[bad[todo]], alt[todo]]) - cands[0],
-                                  per)
-            exact = e + per * np.round((prev_bad[todo][:, None] - e) / per)
-        mv = bad[todo]
-        prev_mv = prev_bad[todo]
-        sc = None if scale is None else scale[mv]
-        # A long move that fails at its four cheapest orientations almost always fails at
-        # its ends (corners, line ends): it goes straight to the split, which searches the
-        # ends at every orientation; short moves are searched at every orientation here.
-        step = options.split_length or max(0.05, nozzle.radius / 4)
-        p0_mv, p1_mv = take_rows(p0, mv), take_rows(p1, mv)
-        long_move = np.hypot(*(p1_mv - p0_mv).T) > 4 * step
-        # the candidates in order of cost, once for the search and the split (a move's
-        # row depends on its direction, width and previous orientation only)
-        near, order = _cost_order(direction[mv], widths[mv], prev_mv, cands, beta, wtab,
-                                  per, options)
-        limit = np.where(long_move, 8, len(cands))
-        found, best = _search_ordered(prepared_target, pieces, p0_mv, p1_mv, near, order,
-                                      sc, limit=limit, workers=workers)
-        angle[mv[found]] = best[found]
-        rest = np.flatnonzero(~found)
-        if rest.size:
-            pm, pa, pb, pp = _split_many(
-                prepared_target, pieces, take_rows(p0_mv, rest), take_rows(p1_mv, rest),
-                direction[mv[rest]], widths[mv[rest]], prev_mv[rest], cands, beta, wtab, per,
-                nozzle, options, None if sc is None else sc[rest],
-                ordered=(take_rows(near, rest), take_rows(order, rest)),
-                tried=_tried(limit[rest], len(cands)),
-                exact=None if exact is None else exact[rest], workers=workers)
-            rows = (mv[rest][pm], pa, pb, pp)
-            if turns:
-                rows = _align_pieces(rows, direction, widths, per, prepared_target, pieces,
-                                     p0, p1, beta, wtab, options, workers=workers)
-                rows = _drop_side_pieces(rows, widths, p0, p1, per, options)
-            result_pieces = PieceMap(mv[rest], rows)
-            angle[mv[rest]] = np.nan
-    if turns and n > 1:
-        angle = _smooth(angle, bad, c1, c2, per, previous, prepared_target, pieces, p0, p1,
-                        scale, machine, workers=workers)
-        if machine.covers_period(per):
-            angle = least_turning(angle, rows, c1, c2, direction, widths, per, previous,
-                                   prepared_target, pieces, p0, p1, scale, chained, beta,
-                                   wtab, options,
-                                   interior=interior if options.wider_interior else None,
-                                   workers=workers)
-    fold = np.zeros(n, dtype=bool)
-    piece_fold = np.zeros(len(rows[0]), dtype=bool)
-    if turns and chained is not None and n > 0:
-        fold, piece_fold = _folds(angle, rows, np.asarray(chained, bool), per, options,
-                                  prepared_target, pieces, p0, p1, fold_pieces,
-                                  workers=workers)
-    width = np.full(n, np.nan)
-    good = ~np.isnan(angle)
-    rel = np.mod(angle[good] - direction[good], 360.0)
-    width[good] = np.interp(rel, np.append(beta, 360.0), np.append(wtab, wtab[0]))
-    return Plan(angle=angle, width=width, pieces=result_pieces, fold=fold, piece_rows=rows,
-                piece_fold=piece_fold)
+    return PlanContext(p0=p0, p1=p1, direction=direction, widths=widths, scale=scale,
+                       target=prepared_target, pieces=fp.convex_pieces(nozzle),
+                       per=nozzle.symmetry_period if machine.turns(nozzle) else 360.0,
+                       beta=beta, wtab=wtab, options=options,
+                       step=options.split_length or max(0.05, nozzle.radius / 4),
+                       workers=workers)
 
 
-def _folds(angle, rows, chained, per, options, target, pieces, p0, p1, fold_pieces, *,
-           workers=1):
-    """Which turns are made while moving: ``Plan.fold`` (per move) and ``Plan.piece_fold``
-    (per piece row).
-
-    A turn of at most ``fold_max`` into a whole move chained to the previous one (whose
-    orientation is its own, or its last piece's when it is split) is made during the move
-    where the footprint turning along it fits; the same for a piece of a split move, from
-    the previous piece of the move or, for its first piece, from the previous move (when
-    chained; ``fold_pieces`` False: never, as where F would not be the XY feed). The test
-    is :func:`~printability.motion.turns.turning_fits`, on the piece's own stretch of the
-    move: what it deposits while turning stays inside the grown target, as every other
-    footprint.
-    """
-    n = len(angle)
-    pm, pt0, pt1, pa = rows
-    pm = np.asarray(pm, np.int64)
-    npc = pm.size
-    # each move's last orientation (NaN: dropped)
-    end = np.asarray(angle, float).copy()
-    first = np.zeros(0, bool)
-    if npc:
-        first = np.ones(npc, bool)
-        first[1:] = pm[1:] != pm[:-1]
-        last = np.append(pm[1:] != pm[:-1], True)
-        end[pm[last]] = pa[last]
-    fold = np.zeros(n, dtype=bool)
-    piece_fold = np.zeros(npc, dtype=bool)
-    whole = np.isfinite(angle)
-    # whole moves: from the previous move's end (the raw difference after a whole move, as
-    # the chain unwrapped them; the nearest equivalent after a split one)
-    prev_a = np.concatenate([[np.nan], end[:-1]])
-    after_whole = np.concatenate([[False], whole[:-1]])
-    a_end = np.where(after_whole, angle, angle + per * np.round((prev_a - angle) / per))
-    with np.errstate(invalid="ignore"):
-        step = np.abs(a_end - prev_a)
-        cand = np.flatnonzero(chained & whole & np.isfinite(step) & (step > 1e-9)
-                              & (step <= options.fold_max))
-    # pieces: from the previous piece of the move, or the previous move's end
-    q_prev = np.full(npc, np.nan)
-    q_ok = np.zeros(npc, bool)
-    if npc and fold_pieces:
-        q_prev[~first] = pa[:-1][~first[1:]]
-        q_ok[~first] = True
-        fm = pm[first]
-        has_prev = fm > 0
-        q_prev[np.flatnonzero(first)[has_prev]] = end[fm[has_prev] - 1]
-        q_ok[np.flatnonzero(first)[has_prev]] = chained[fm[has_prev]]
-    q_end = pa + per * np.round((q_prev - pa) / per) if npc else pa
-    with np.errstate(invalid="ignore"):
-        q_step = np.abs(q_end - q_prev)
-        q_cand = np.flatnonzero(q_ok & np.isfinite(q_step) & (q_step > 1e-9)
-                                & (q_step <= options.fold_max))
-    m = q_cand.size
-    if cand.size + m == 0:
-        return fold, piece_fold
-    mv = pm[q_cand]
-    d = take_rows(p1, mv) - take_rows(p0, mv)
-    a0 = take_rows(p0, mv) + pt0[q_cand][:, None] * d
-    a1 = take_rows(p0, mv) + pt1[q_cand][:, None] * d
-    ok = turning_fits(target, pieces, np.concatenate([take_rows(p0, cand), a0]),
-                       np.concatenate([take_rows(p1, cand), a1]),
-                       np.concatenate([prev_a[cand], q_prev[q_cand]]),
-                       np.concatenate([a_end[cand], q_end[q_cand]]), workers=workers)
-    fold[cand] = ok[:cand.size]
-    piece_fold[q_cand] = ok[cand.size:]
-    return fold, piece_fold
+def _search_refused(ctx: PlanContext, angle: np.ndarray, picks: tuple, bad: np.ndarray, *,
+                    previous: float, machine: Machine, nozzle: Nozzle) -> tuple:
+    """Steps 2 and 3 of the module docs for the moves ``bad`` that do not fit at their
+    preferred orientation (``picks``: the two laying the planned width per move): ``angle``
+    is updated in place (NaN where a move is split or dropped); returns the pieces' rows
+    and their :class:`PieceMap`."""
+    turns = machine.turns(nozzle)
+    cands = candidate_orientations(machine, nozzle, step=ctx.options.search_step) if turns \
+        else np.array([0.0])
+    # turn least relative to the preferred chain (smooth along curves); the
+    # smoothing pass re-chains the orientations the search chose
+    prev_bad = np.concatenate([[previous], angle[:-1]])[bad]
+    todo = np.arange(bad.size)  # the bad moves the search and the split still take
+    exact = None
+    if turns:
+        todo, exact = _other_width_solution(ctx, angle, picks, bad, prev_bad, cands, machine)
+    mv = bad[todo]
+    prev_mv = prev_bad[todo]
+    sub = ctx.take(mv)
+    # A long move that fails at its four cheapest orientations almost always fails at
+    # its ends (corners, line ends): it goes straight to the split, which searches the
+    # ends at every orientation; short moves are searched at every orientation here.
+    long_move = np.hypot(*(sub.p1 - sub.p0).T) > 4 * ctx.step
+    # the candidates in order of cost, once for the search and the split (a move's
+    # row depends on its direction, width and previous orientation only)
+    near, order = _cost_order(sub.direction, sub.widths, prev_mv, cands, ctx.beta, ctx.wtab,
+                              ctx.per, ctx.options)
+    limit = np.where(long_move, 8, len(cands))
+    found, best = _search_ordered(ctx.target, ctx.pieces, sub.p0, sub.p1, near, order,
+                                  sub.scale, limit=limit, workers=ctx.workers)
+    angle[mv[found]] = best[found]
+    rest = np.flatnonzero(~found)
+    if rest.size == 0:
+        return (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)), {}
+    pm, pa, pb, pp = _split_many(sub.take(rest), prev_mv[rest], cands,
+                                 ordered=(take_rows(near, rest), take_rows(order, rest)),
+                                 tried=_tried(limit[rest], len(cands)),
+                                 exact=None if exact is None else exact[rest])
+    rows = (mv[rest][pm], pa, pb, pp)
+    if turns:
+        rows = drop_side_pieces(ctx, align_pieces(ctx, rows))
+    angle[mv[rest]] = np.nan
+    return rows, PieceMap(mv[rest], rows)
 
 
-def _longest_piece(pm: np.ndarray, span: np.ndarray) -> np.ndarray:
-    """Per piece row (rows sorted by move ``pm``), the row of its move's longest piece
-    (the first of equals). O(rows)."""
-    npc = len(pm)
-    lo = np.flatnonzero(np.concatenate([[True], pm[1:] != pm[:-1]]))
-    best = lo + np.array([int(np.argmax(span[a:b])) for a, b in
-                          zip(lo.tolist(), [*lo[1:].tolist(), npc], strict=True)], np.int64)
-    return np.repeat(best, np.diff(np.append(lo, npc)))
-
-
-def _align_pieces(rows, direction, widths, per, target, pieces, p0, p1, beta, wtab, options, *,
-                  workers=1):
-    """The pieces of each split move next to its longest one take that one's orientation
-    where it fits there and lays a width no further from the plan (``width_slack``) than
-    their own: no turn between them then (and contiguous ones are joined into one).
-
-    The split searches each stretch on its own, cheapest first, and the short pieces next
-    to a corner end up at a grid orientation a few degrees from the long piece's.
-    """
-    pm, t0, t1, pa = rows
-    npc = len(pm)
-    if npc < 2:
-        return rows
-    anchor = _longest_piece(pm, t1 - t0)
-    r = np.arange(npc)
-    near = (np.abs(r - anchor) == 1)
-    target_a = pa[anchor]
-    diff = np.abs((pa - target_a + per / 2) % per - per / 2)
-    cand = np.flatnonzero(near & (diff > 1e-9))
-    if cand.size == 0:
-        return rows
-    table_b = np.append(beta, 360.0)
-    table_w = np.append(wtab, wtab[0])
-    m = pm[cand]
-    w_plan = widths[m]
-
-    def werr(phi):
-        w = np.interp(np.mod(phi - direction[m], 360.0), table_b, table_w)
-        return np.where(np.isnan(w_plan), 0.0, np.abs(w - np.nan_to_num(w_plan)))
-
-    ok_w = werr(target_a[cand]) <= werr(pa[cand]) + options.width_slack
-    cand = cand[ok_w]
-    if cand.size == 0:
-        return rows
-    m = pm[cand]
-    d = p1[m] - p0[m]
-    a = p0[m] + t0[cand][:, None] * d
-    b = p0[m] + t1[cand][:, None] * d
-    ok = fp.fits(target, pieces, a, b, target_a[cand], workers=workers)
-    if not ok.any():
-        return rows
-    pa = pa.copy()
-    pa[cand[ok]] = target_a[cand[ok]]
-    return merge_pieces(pm, t0, t1, pa)
-
-
-def _drop_side_pieces(rows, widths, p0, p1, per, options):
-    """Leave out the short pieces of split moves that need a turn of their own.
-
-    At a convex corner of an outer wall an elongated orifice laying the planned width
-    pokes out of the part for a few tenths of a millimetre on either side; the split then
-    finds, for those ends, other orientations (narrower, along the motion) that still fit,
-    and the nozzle turns there and back: two or three turns per corner, each a full stop
-    of the XY motion on real firmware, for a fleck of material (the calibration cube on a
-    360 °/s axis: 0.6 s per corner, 40 % more print time). A piece other than its move's
-    longest, at another orientation than that one, and at most
-    ``options.side_piece_widths`` planned bead widths long is dropped (its length is
-    reported as lost, like every dropped length); 0 keeps them all.
-    """
-    k = options.side_piece_widths
-    pm, t0, t1, pa = rows
-    npc = len(pm)
-    if k <= 0 or npc < 2:
-        return rows
-    span = t1 - t0
-    anchor = _longest_piece(pm, span)
-    length = span * np.hypot(*(p1[pm] - p0[pm]).T)
-    w = np.asarray(widths, dtype=float)[pm]
-    limit = k * np.where(np.isfinite(w), w, 0.0)
-    turned = np.abs((pa - pa[anchor] + per / 2) % per - per / 2) > 1e-6
-    keep = ~(turned & (length <= limit) & (np.arange(npc) != anchor))
-    if keep.all():
-        return rows
-    return (pm[keep], t0[keep], t1[keep], pa[keep])
-
-
-def _smooth(angle, searched, c1, c2, per, previous, target, pieces, p0, p1, scale, machine, *,
-            workers=1):
-    """Second pass: turn least given the orientations the search replaced.
-
-    The preferred orientations were chained assuming every move fits; where
-    the search replaced one, the next moves may now be nearer to the other
-    solution of the same width. Proposals are re-tested together and kept
-    only where they fit; an equivalent orientation (a multiple of the period
-    away) needs no test.
-    """
-    n = len(angle)
-    is_searched = np.zeros(n, dtype=bool)
-    is_searched[np.asarray(searched, dtype=np.int64)] = True
-    reach = machine.has_rotary and not machine.covers_period(per)
-    prop = smooth_chain(np.asarray(angle, dtype=float), np.asarray(c1, dtype=float),
-                        np.asarray(c2, dtype=float), is_searched, bool(reach), float(per),
-                        float(previous))
-    diff = np.abs((prop - angle + per / 2) % per - per / 2)
-    test = np.flatnonzero(np.isfinite(prop) & (diff > 1e-6))
-    out = np.where(np.isfinite(prop), prop, angle)
-    if test.size:
-        ok = fp.fits(target, pieces, take_rows(p0, test), take_rows(p1, test), prop[test],
-                     scale=None if scale is None else scale[test], workers=workers)
-        keep = test[~ok]
-        # a rejected proposal keeps its old orientation, unwrapped near its neighbour
-        out[keep] = angle[keep]
-    return out
-
-
-def _other_solution(pick, c1, c2, per, machine):
-    """Per move, the orientation laying the planned width that the chain did not pick
-    (``c1`` or ``c2``, unwrapped near ``pick``); ``pick`` itself where there is one only
-    or the other is out of the axis' reach."""
-    d1 = np.abs(np.mod(pick - c1 + per / 2, per) - per / 2)
-    d2 = np.abs(np.mod(pick - c2 + per / 2, per) - per / 2)
-    raw = np.where(d1 <= d2, c2, c1)
-    alt = raw + per * np.round((pick - raw) / per)
-    same = np.minimum(d1, d2) > 1e-9  # the pick is neither (out of reach: clipped)
-    same |= np.abs(np.mod(alt - pick + per / 2, per) - per / 2) < 1e-9
-    if machine.has_rotary and not machine.covers_period(per):
-        same |= ~_reachable(alt, machine, per)
-    return np.where(same, pick, alt)
+def _other_width_solution(ctx: PlanContext, angle: np.ndarray, picks: tuple, bad: np.ndarray,
+                          prev_bad: np.ndarray, cands: np.ndarray, machine: Machine) -> tuple:
+    """The other orientation laying the planned width, before the grid's (10° apart: they
+    miss the width by up to a few hundredths of a mm, and a wider one cannot fit where G is
+    just the planned bead): tried on the whole moves ``bad`` (``angle`` updated in place
+    where it fits); returns the positions in ``bad`` still to search and, for those, both
+    exact orientations (for the split's search for the middle to keep)."""
+    c1, c2 = picks
+    per = ctx.per
+    todo = np.arange(bad.size)
+    alt = other_solution(angle[bad], c1[bad], c2[bad], per, machine)
+    other = np.flatnonzero(alt != angle[bad])
+    if other.size:
+        tried = bad[other]
+        hit = fp.fits(ctx.target, ctx.pieces, take_rows(ctx.p0, tried),
+                      take_rows(ctx.p1, tried), alt[other],
+                      scale=None if ctx.scale is None else ctx.scale[tried],
+                      workers=ctx.workers)
+        angle[bad[other[hit]]] = alt[other[hit]]
+        todo = np.setdiff1d(todo, other[hit], assume_unique=True)
+    # taken to the grid's range, then unwrapped near the previous orientation as
+    # the grid is (_cost_terms): an exact orientation that is a grid one (a turn
+    # of 90°, say) gets the same value, so pieces at it join
+    e = cands[0] + np.mod(np.column_stack([angle[bad[todo]], alt[todo]]) - cands[0], per)
+    return todo, e + per * np.round((prev_bad[todo][:, None] - e) / per)

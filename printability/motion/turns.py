@@ -11,11 +11,16 @@ makes a turn during a move where the footprint turning along it still fits
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from printability._arrays import take_rows
 from printability.motion import footprints as fp
 from printability.motion._plan_kernels import chain_viterbi, distinct_candidates, fold_pairs
+
+if TYPE_CHECKING:
+    from printability.motion.plan import PlanContext
 
 __all__ = ["TURN_STEP", "least_turning", "turning_fits"]
 
@@ -78,8 +83,9 @@ _RELATIVE = np.arange(-90.0, 90.0, 5.0)
 _FOLD_ROUNDS = 12
 
 
-def least_turning(angle, rows, c1, c2, direction, widths, per, previous, target, pieces, p0, p1,
-                   scale, chained, beta, wtab, options, *, interior=None, workers=1):
+def least_turning(angle: np.ndarray, rows: tuple, c1: np.ndarray, c2: np.ndarray,
+                  ctx: PlanContext, previous: float, chained: np.ndarray | None, *,
+                  interior: np.ndarray | None = None) -> np.ndarray:
     """Third pass: the admissible orientations that turn least along each path.
 
     The chain and the search pick move by move, each near the previous pick: along a
@@ -105,15 +111,63 @@ def least_turning(angle, rows, c1, c2, direction, widths, per, previous, target,
     one orientation through its 90° and 180° changes of direction.
     Only for an axis that reaches every orientation.
     """
-    n = len(angle)
     whole = np.isfinite(angle)
     if not whole.any():
         return angle
+    cols, keep, err, weight = _candidates(angle, c1, c2, ctx, interior)
+    cand_in = np.where(keep, cols, np.nan)
+    cand_out = cand_in.copy()
+    # a split move: its pieces, fixed (first and last)
+    pm, _, _, pa = rows
+    first = np.zeros(0, bool)
+    if pm.size:
+        first = np.searchsorted(pm, pm, "left") == np.arange(pm.size)
+        last = np.append(pm[1:] != pm[:-1], True)
+        cand_in[pm[first], 0] = pa[first]
+        cand_out[pm[last], 0] = pa[last]
+    cost = np.where(keep, 10.0 * weight[:, None] * err / max(ctx.options.width_slack, 1e-9),
+                    0.0)
+    folds = _fold_table(cand_in, cand_out, chained, ctx.per, ctx.options)
+    # where the turn into each move is made: along the move, or its first piece
+    ta, tb = ctx.p0, ctx.p1
+    if pm.size:
+        ta, tb = ctx.p0.copy(), ctx.p1.copy()
+        fm = pm[first]
+        d = ctx.p1[fm] - ctx.p0[fm]
+        ta[fm] = ctx.p0[fm] + rows[1][first][:, None] * d
+        tb[fm] = ctx.p0[fm] + rows[2][first][:, None] * d
+    cand_in = np.ascontiguousarray(cand_in)
+    cand_out = np.ascontiguousarray(cand_out)
+    pick = _cheapest_path(cand_in, cand_out, np.ascontiguousarray(cost), folds, ctx, (ta, tb))
+    out = angle.copy()
+    prev = previous
+    per = ctx.per
+    for i in range(len(angle)):
+        c = pick[i]
+        if c < 0:
+            continue
+        if whole[i]:
+            a = cols[i, c]
+            out[i] = a + per * round((prev - a) / per)
+            prev = out[i]
+        else:
+            prev = cand_out[i, 0]
+    return out
+
+
+def _candidates(angle, c1, c2, ctx, interior):
+    """Per whole move, the orientations :func:`least_turning` may pick, leftmost (its own
+    first), in as few columns as hold them: ``(cols, keep, err, weight)``, the
+    orientations, which are kept (they lay a width allowed and fit), their width errors,
+    and the weight of a width error per move."""
+    direction, widths, per, options = ctx.direction, ctx.widths, ctx.per, ctx.options
+    n = len(angle)
+    whole = np.isfinite(angle)
     grid = np.arange(0.0, per, options.search_step)
     cols = np.column_stack([angle, c1, c2, direction[:, None] + _RELATIVE[None, :],
                             np.broadcast_to(grid, (n, grid.size))])
-    table_b = np.append(beta, 360.0)
-    table_w = np.append(wtab, wtab[0])
+    table_b = np.append(ctx.beta, 360.0)
+    table_w = np.append(ctx.wtab, ctx.wtab[0])
 
     def werr(phi):
         w = np.interp(np.mod(phi - direction[:, None], 360.0), table_b, table_w)
@@ -128,7 +182,7 @@ def least_turning(angle, rows, c1, c2, direction, widths, per, previous, target,
     # a move laying the planned width keeps to the orientations laying it (to within the
     # table's interpolation); another one to those no further from the plan than its own
     # orientation or ``width_slack``
-    length = np.hypot(*(p1 - p0).T)
+    length = np.hypot(*(ctx.p1 - ctx.p0).T)
     allowed = np.where(length <= _SHORT, np.maximum(own, _SHORT_SLACK),
                        np.where(own <= _EXACT, _EXACT, np.maximum(own, options.width_slack)))
     # a move no longer than half its planned width is mostly the footprint's own cap: the
@@ -144,37 +198,23 @@ def least_turning(angle, rows, c1, c2, direction, widths, per, previous, target,
     test[:, 0] = False  # the move's own orientation fits already
     mv, col = np.nonzero(test)
     if mv.size:
-        ok = fp.fits(target, pieces, take_rows(p0, mv), take_rows(p1, mv), cols[mv, col],
-                     scale=None if scale is None else scale[mv], workers=workers)
+        ok = fp.fits(ctx.target, ctx.pieces, take_rows(ctx.p0, mv), take_rows(ctx.p1, mv),
+                     cols[mv, col], scale=None if ctx.scale is None else ctx.scale[mv],
+                     workers=ctx.workers)
         keep[mv[~ok], col[~ok]] = False
     # the candidates kept, leftmost (the move's own first), in as few columns as hold them
     order = np.argsort(~keep, axis=1, kind="stable")[:, :max(1, int(keep.sum(axis=1).max()))]
-    keep = np.take_along_axis(keep, order, axis=1)
-    cols = np.take_along_axis(cols, order, axis=1)
-    err = np.take_along_axis(err, order, axis=1)
-    cand_in = np.where(keep, cols, np.nan)
-    cand_out = cand_in.copy()
-    # a split move: its pieces, fixed (first and last)
-    pm, _, _, pa = rows
-    if pm.size:
-        first = np.searchsorted(pm, pm, "left") == np.arange(pm.size)
-        last = np.append(pm[1:] != pm[:-1], True)
-        cand_in[pm[first], 0] = pa[first]
-        cand_out[pm[last], 0] = pa[last]
     weight = np.where(tiny, length, np.maximum(length, 1.0))
-    cost = np.where(keep, 10.0 * weight[:, None] * err / max(options.width_slack, 1e-9), 0.0)
-    folds = _fold_table(cand_in, cand_out, chained, per, options)
-    # where the turn into each move is made: along the move, or its first piece
-    ta, tb = p0, p1
-    if pm.size:
-        ta, tb = p0.copy(), p1.copy()
-        fm = pm[first]
-        d = p1[fm] - p0[fm]
-        ta[fm] = p0[fm] + rows[1][first][:, None] * d
-        tb[fm] = p0[fm] + rows[2][first][:, None] * d
-    cand_in = np.ascontiguousarray(cand_in)
-    cand_out = np.ascontiguousarray(cand_out)
-    cost = np.ascontiguousarray(cost)
+    return (np.take_along_axis(cols, order, axis=1), np.take_along_axis(keep, order, axis=1),
+            np.take_along_axis(err, order, axis=1), weight)
+
+
+def _cheapest_path(cand_in, cand_out, cost, folds, ctx, ends):
+    """:func:`chain_viterbi`'s pick per move, the turns during a move on its path tested
+    (``folds`` updated), the turn into each move made from ``ends`` (its start and end, or
+    its first piece's)."""
+    ta, tb = ends
+    per, target, pieces, workers = ctx.per, ctx.target, ctx.pieces, ctx.workers
     params = np.array([per, _STOP, 0.25, _REVERSE])
     # The turns during a move are tested where the path takes them only: the pass counts
     # an untested one as made while moving (it can cost no less), so once every turn of
@@ -182,7 +222,7 @@ def least_turning(angle, rows, c1, c2, direction, widths, per, previous, target,
     # (each round tests a path's worth, a few thousand; testing every pair, millions, cost
     # the shared screw sample 2 s). With the moves whose turn failed tested whole, the
     # screw takes 4 rounds per batch; after _FOLD_ROUNDS a turn still untested on the path
-    # would only be mis-priced: ``Plan.fold`` is tested on its own (_folds).
+    # would only be mis-priced: ``Plan.fold`` is tested on its own (``fold_flags``).
     for r in range(_FOLD_ROUNDS + 1):
         pick = chain_viterbi(cand_in, cand_out, cost, folds, params)
         i = np.flatnonzero((pick[1:] >= 0) & (pick[:-1] >= 0)) + 1
@@ -198,19 +238,7 @@ def least_turning(angle, rows, c1, c2, direction, widths, per, previous, target,
             b_i, b_j, b_c = np.nonzero(folds[bad] == 3)
             _test_folds(folds, cand_in, cand_out, per, target, pieces, ta, tb, workers,
                         at=(bad[b_i], b_j, b_c))
-    out = angle.copy()
-    prev = previous
-    for i in range(n):
-        c = pick[i]
-        if c < 0:
-            continue
-        if whole[i]:
-            a = cols[i, c]
-            out[i] = a + per * round((prev - a) / per)
-            prev = out[i]
-        else:
-            prev = cand_out[i, 0]
-    return out
+    return pick
 
 
 def _fold_table(cand_in, cand_out, chained, per, options):

@@ -56,7 +56,15 @@ from printability.postprocess.results import (
     unchanged_result,
 )
 from printability.postprocess.scan import already_processed, config_value
-from printability.rewrite import RewriteOutput, eol_of, first_command_line, rewrite
+from printability.rewrite import (
+    ChordPlan,
+    RewriteOutput,
+    SlicerFile,
+    WriteSettings,
+    eol_of,
+    first_command_line,
+    rewrite,
+)
 from printability.targets import layer_targets
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -416,10 +424,11 @@ def _plan_batch(chords: Chords, idx: np.ndarray, lay_of: np.ndarray, offset: np.
         same = (sm[1:] == sm[:-1]) | ((sm[1:] == sm[:-1] + 1)
                                       & (np.abs(p0[1:] - p1[:-1]).max(axis=1) < 1e-9))
         chained[1:] = same & (lay_of[1:] == lay_of[:-1])
+    planner = replace(options.orientation, narrow_beads=job.narrow_beads,
+                      fold_pieces=job.feed_policy == "xy")
     return plan_orientations(p0, p1, chords.width[idx], target, job.nozzle, job.machine,
-                             options=options.orientation, previous=previous,
+                             options=planner, previous=previous,
                              prepared_target=target, chained=chained,
-                             narrow_beads=job.narrow_beads, fold_pieces=job.feed_policy == "xy",
                              interior=chords.interior[idx],
                              # the cores are the targets' until the last is built
                              workers=job.workers if last else 1)
@@ -450,10 +459,11 @@ def rewrite_moves(g: GCodeFile, data: bytes, chords: Chords, plans: LayerPlans, 
                                & options.orientation.wider_interior, chords.width,
                                plans.width_laid)
     progress("rewriting the moves")
-    return rewrite(g, data, g.moves, chords.seg, chords.move, plans.angle, plans.fold,
-                   width_for_e, plans.pieces, chords.width, job.heights, job.writer,
-                   job.turns, job.e_policy, job.nozzle, piece_rows=plans.piece_rows,
-                   piece_fold=plans.piece_fold)
+    return rewrite(SlicerFile(data, g, g.moves),
+                   ChordPlan(chords.seg, chords.move, plans.angle, plans.fold, width_for_e,
+                             chords.width, plans.pieces, job.heights, plans.piece_rows,
+                             plans.piece_fold),
+                   WriteSettings(job.writer, job.turns, job.e_policy, job.nozzle))
 
 
 # ----------------------------------------------------------------- reporting

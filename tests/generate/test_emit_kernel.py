@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,8 +19,6 @@ from gcode.writer import Emitter, WriterOptions
 from printability._emit_kernel import emit, hypot
 from printability.generate import GenerateOptions, generate_gcode
 from printability.sources import load_layers
-
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "stl"
 
 
 def _python_run(em, cols, *, z, height, feed, travel, first_move):
@@ -138,8 +135,8 @@ def test_generate_compiled_equals_python(nozzle, machine, options, monkeypatch):
     assert fast == slow
 
 
-def test_generate_compiled_equals_python_on_a_real_part(monkeypatch):
-    layers = load_layers(DATA / "ThinWall.stl", layer_height=0.2)
+def test_generate_compiled_equals_python_on_a_real_part(monkeypatch, shared_data):
+    layers = load_layers(shared_data / "stl" / "ThinWall.stl", layer_height=0.2)
     layers = dataclasses.replace(layers, layers=layers.layers[:6])
     fast, res = generate_gcode(layers, ELLIPSE, "ttr")
     assert res.rotations > 100 and res.dropped_length > 0  # turns, splits and drops

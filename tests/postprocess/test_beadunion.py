@@ -190,11 +190,11 @@ def test_the_fused_search_decides_as_geos_on_a_bead_union(nozzle):
 
 def _random_polygons(rng, n, *, lengths, radii, tau):
     """n bead polygons on random segments (lengths drawn from ``lengths``, radii uniform
-    in ``radii``): their ends, side offsets, half-planes, edges per half turn, phases and
-    corner cosines."""
+    in ``radii``): the beads, their polygons and corner cosines."""
     from printability.motion._bead_boundary import _corner_cosines
     from printability.motion._bead_polygons import _polygons
     from printability.motion.beadunion import INNER
+    from printability.motion.records import BeadPolygons, Beads, HalfPlanes
 
     ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
     length = rng.choice(lengths, n)
@@ -202,8 +202,9 @@ def _random_polygons(rng, n, *, lengths, radii, tau):
     bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
     r = rng.uniform(*radii, n)
     rho, rmax = r + SIDE * tau, r * INNER + tau
-    off, ux, uy, h, _, _, _, k, phase = _polygons(ax, ay, bx, by, rho, rmax)
-    return ax, ay, bx, by, rho, off, ux, uy, h, k, phase, _corner_cosines(k)
+    off, ux, uy, h, vx, vy, box, k, phase = _polygons(ax, ay, bx, by, rho, rmax)
+    return (Beads(ax, ay, bx, by, rho),
+            BeadPolygons(HalfPlanes(off, ux, uy, h), vx, vy, box, k, phase), _corner_cosines(k))
 
 
 @pytest.mark.parametrize("tau", [TAU, 1e-2, 0.1])
@@ -217,8 +218,10 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
 
     rng = np.random.default_rng(seed)
     n = 40
-    ax, ay, bx, by, rho, off, ux, uy, h, ks, phase, vc = _random_polygons(
+    beads, polys, vc = _random_polygons(
         rng, n, lengths=[0.0, 0.05, 1.0, 4.0], radii=(0.1, 0.6), tau=tau)
+    ax, ay, bx, by, rho = beads
+    off, ks = polys.planes.off, polys.k
     windowed = 0
     for j in range(n):
         k = ks[j]
@@ -229,12 +232,12 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
         py = ay[j] + t * (by[j] - ay[j]) + s.imag
         e = rng.uniform(0.001, 2 * rho[j], 400) * np.exp(1j * rng.uniform(0, 2 * math.pi, 400))
         for i in range(400):
-            args = (px[i], py[i], px[i] + e[i].real, py[i] + e[i].imag, ux, uy, h,
-                    off[j], off[j + 1], _EPS if i % 2 else -_EPS, _EPS,
-                    math.cos(i), math.sin(i))
-            ends = [_window(x, y, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]], rho[j],
-                            k, phase[j], _EPS, vc[k]) for x, y in (args[:2], args[2:4])]
-            near = _clip_windows(*args, *ends[0], *ends[1])
+            edge = (px[i], py[i], px[i] + e[i].real, py[i] + e[i].imag)
+            args = (edge, polys.planes, off[j], off[j + 1],
+                    (_EPS if i % 2 else -_EPS, _EPS, math.cos(i), math.sin(i)))
+            ends = [_window(x, y, beads, polys, j, _EPS, vc[k])
+                    for x, y in (edge[:2], edge[2:])]
+            near = _clip_windows(*args, *ends)
             assert near == _clip(*args)  # (an empty interval is (1, 0) in both)
             windowed += max(ends[0][1], ends[1][1]) < k // 2
     # most edges here take the windowed path (the test would be vacuous otherwise)
@@ -251,8 +254,10 @@ def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
 
     rng = np.random.default_rng(seed)
     n = 30
-    ax, ay, bx, by, rho, off, ux, uy, h, ks, phase, vc = _random_polygons(
+    beads, polys, vc = _random_polygons(
         rng, n, lengths=[0.0, 0.3, 2.0], radii=(0.15, 0.5), tau=TAU)
+    ax, ay, bx, by, rho = beads
+    off, ks = polys.planes.off, polys.k
     arcs = 0
     for j in range(n):
         k = ks[j]
@@ -263,18 +268,17 @@ def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
             py = ay[j] + t * (by[j] - ay[j]) + s.imag
             e = rng.uniform(0.001, rho[j]) * np.exp(1j * rng.uniform(0, 2 * math.pi))
             qx, qy = px + e.real, py + e.imag
-            args = (px, py, qx, qy, ux, uy, h, off[j], off[j + 1], _EPS if i % 2 else -_EPS,
-                    _EPS, math.cos(i), math.sin(i))
-            w = [_window(x, y, ax[j], ay[j], bx[j], by[j], ux[off[j]], uy[off[j]], rho[j], k,
-                         phase[j], _EPS, vc[k]) for x, y in ((px, py), (qx, qy))]
+            args = ((px, py, qx, qy), polys.planes, off[j], off[j + 1],
+                    (_EPS if i % 2 else -_EPS, _EPS, math.cos(i), math.sin(i)))
+            w = [_window(x, y, beads, polys, j, _EPS, vc[k]) for x, y in ((px, py), (qx, qy))]
             full = _clip(*args)
-            assert _clip_windows(*args, *w[0], *w[1]) == full
+            assert _clip_windows(*args, *w) == full
             if max(w[0][1], w[1][1]) < k // 2:
                 # a window's centre moved round by whole turns, and widened by one plane
                 (j1, w1), (j2, w2) = w
                 wide = [(j1 + 2 * k * rng.integers(-2, 3), min(w1 + 1, k // 2 - 1) if w1 >= 0
                          else w1), (j2 - 2 * k, w2)]
-                assert _clip_windows(*args, *wide[0], *wide[1]) == full
+                assert _clip_windows(*args, *wide) == full
                 arcs += min(w1, w2) >= 0
     assert arcs > n * 300 // 4  # both ends windowed: the one-arc path is exercised
 

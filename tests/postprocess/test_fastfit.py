@@ -36,12 +36,13 @@ def test_fast_and_shapely_agree_move_by_move_on_real_files(request, monkeypatch,
     calls = {"n": 0, "moves": 0, "fit": 0}
     first_fit = footprints._first_fit
 
-    def checked(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend, *args,
+    def checked(target, pieces, segments, seg, angle, gpos, gend, *, angle_end=None,
                 gseg=None, trig=None, **kw):
         # every candidate the fused search tried gets shapely's answer: the ones before
         # its pick do not fit, the pick does
-        first = first_fit(target, pieces, p0, p1, scale, seg, angle, angle_end, gpos, gend,
-                          *args, gseg=gseg, trig=trig, **kw)
+        first = first_fit(target, pieces, segments, seg, angle, gpos, gend,
+                          angle_end=angle_end, gseg=gseg, trig=trig, **kw)
+        p0, p1, scale = segments
         tried = [np.arange(lo, hi if f < 0 else f + 1)
                  for lo, hi, f in zip(gpos.tolist(), gend.tolist(), first.tolist(), strict=True)]
         q = np.concatenate(tried) if tried else np.zeros(0, dtype=np.int64)
@@ -284,7 +285,7 @@ def test_first_fit_of_groups_is_shapely_on_random_targets(nozzle, seed):
     gpos = np.arange(n) * per
     pieces = convex_pieces(parse_nozzle(nozzle))
     for scale in (None, rng.uniform(0.3, 1.0, n)):
-        fast = footprints._first_fit(target, pieces, p0, p1, scale, seg, angle, None, gpos,
+        fast = footprints._first_fit(target, pieces, (p0, p1, scale), seg, angle, gpos,
                                       gpos + per)
         slow = footprints._first_fit_reference(target, pieces, p0, p1, scale, seg, angle, gpos,
                                                 gpos + per)
@@ -332,7 +333,8 @@ def test_deep_in_sweep_only_where_the_edge_enters_the_footprint(nozzle):
 
     rng = np.random.default_rng(3)
     (piece,) = convex_pieces(parse_nozzle(nozzle))
-    kind, a, b, cx, cy, rc, rs = footprints._piece_params(piece)
+    params = footprints._piece_params(piece)
+    kind = params[0]
     n = 2000
     p0 = rng.uniform(-1, 1, (n, 2))
     p1 = p0 + rng.normal(0, 0.5, (n, 2))
@@ -344,8 +346,7 @@ def test_deep_in_sweep_only_where_the_edge_enters_the_footprint(nozzle):
     deep = 0
     for i in range(n):
         c, s = math.cos(math.radians(angle[i])), math.sin(math.radians(angle[i]))
-        d = _deep_in_sweep(*(e0[i] - p0[i]), *(e1[i] - p0[i]), *(p1[i] - p0[i]), a, b, cx, cy,
-                           rc, rs, c, s, scale[i])
+        d = _deep_in_sweep(e0[i] - p0[i], e1[i] - p0[i], p1[i] - p0[i], params, c, s, scale[i])
         inner = shapely.Polygon(rings[i]).buffer(-1e-7)
         edge = shapely.LineString([e0[i], e1[i]])
         if d:

@@ -30,7 +30,7 @@ def test_near_axis_is_a_shortcut_of_the_polygon_test(seed):
     r = rng.choice([0.2, 0.225, 0.3], n)
     u = bead_union(p0, p1, r, grow=TAU)
     loc = locator(u)
-    off, ux, uy, h, start, items, x0, y0, cell, nx, ny, ax, ay, bx, by, rho = loc
+    ax, ay, bx, by, rho = loc.beads
     grid = boundary_grid(u)
     # points on the axes, then at a distance from them just in and just out of rho
     i = rng.integers(0, n, 6000)
@@ -44,10 +44,10 @@ def test_near_axis_is_a_shortcut_of_the_polygon_test(seed):
     py = np.concatenate([py + dist * np.sin(side), rng.uniform(-1, 7, 2000)])
     near = 0
     for k in range(px.size):
-        poly = in_polygons(px[k], py[k], off, ux, uy, h, start, items, x0, y0, cell, nx, ny)
-        fast = _near_axis(px[k], py[k], start, items, x0, y0, cell, nx, ny, ax, ay, bx, by, rho)
+        poly = in_polygons(px[k], py[k], loc.polygons, loc.cells)
+        fast = _near_axis(px[k], py[k], loc.cells, loc.beads)
         assert not fast or poly, k
-        assert _locate(px[k], py[k], *grid[:11], *loc) == poly, k
+        assert _locate(px[k], py[k], grid, loc) == poly, k
         if k < 2000 or (k < 6000 and dist[k] < rho[i[k]] - 2 * _AXIS):
             assert fast, k
         near += fast

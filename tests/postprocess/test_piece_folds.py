@@ -11,6 +11,7 @@ a rotation-only line is a turn too large, or one that does not fit while moving.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +48,8 @@ def test_piece_turns_ride_on_the_moves_and_stay_inside(monkeypatch):
     with monkeypatch.context() as mp:
         plan = orientation.plan_orientations
         mp.setattr(pipeline, "plan_orientations",
-                   lambda *a, **k: plan(*a, **{**k, "fold_pieces": False}))
+                   lambda *a, **k: plan(*a, **{**k, "options": dataclasses.replace(
+                       k["options"], fold_pieces=False)}))
         without = _run()
     assert _rotation_only(new) < _rotation_only(without)
     # a C word on a new extruding line of a split move, and on a line to a piece's start

@@ -90,7 +90,6 @@ def test_what_fits_nowhere_at_twice_the_split_length_is_halved():
     # both were dropped whole; halved, one piece of each fits (and so it does in the
     # reference split, shapely's covers on every candidate)
     from printability.machine import parse_machine
-    from printability.motion import footprints as fp
     from printability.motion.beadunion import bead_union
     from printability.nozzle import parse_nozzle
 
@@ -105,9 +104,9 @@ def test_what_fits_nowhere_at_twice_the_split_length_is_halved():
     for move in (0, 1):
         kept = plan.pieces[move]
         assert kept and all((p.t1 - p.t0) * leg <= step * 1.000001 for p in kept)
-    rows = orientation._split_many(target, fp.convex_pieces(noz), p0, p1,
-                                   np.array([0.0, 90.0]), np.full(2, w), np.zeros(2),
+    ctx = orientation.plan_context(p0, p1, np.full(2, w), target, noz, machine,
+                                   prepared_target=target)
+    rows = orientation._split_many(ctx, np.zeros(2),
                                    orientation.candidate_orientations(machine, noz, step=10.0),
-                                   *orientation.width_table(noz), noz.symmetry_period, noz,
-                                   orientation.OrientationOptions(), fast=False)
+                                   fast=False)
     assert set(rows[0].tolist()) == {0, 1}
