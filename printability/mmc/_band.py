@@ -87,8 +87,11 @@ uncertain pixel first (along ∂G one angle that slides is enough); the pixels
 left open (leaves no piece covers and none proved lost) are settled again with
 the pieces of every angle, made only for the edges within reach of them.
 
-The numba kernels are in :mod:`printability.mmc._raster_kernels` (a module whose
-cached kernels the kernel-cache check keeps in step); this module makes their inputs.
+The numba kernels are in ``_band_slides`` (slides and pivots), ``_band_lists`` (the
+per-pixel lists), ``_band_settle`` (the quadtree), ``_band_lower`` (the convex chain
+model) and ``_band_geometry`` (their plane geometry), modules whose cached kernels the
+kernel-cache check keeps in step; they take the records of ``_band_records``. This module
+makes their inputs.
 
 Complexity
 ----------
@@ -112,18 +115,23 @@ import numpy as np
 import shapely
 
 from printability.geometry import Grid
-from printability.mmc._raster_kernels import (  # the kernels: a cached kernel module
-    _TILE,
-    _bucket,
-    _edge_pixels,
-    _settle_pixels,
-    pivot_centres,
-    slide_intervals,
+from printability.mmc._band_lists import TILE, bucket_pieces, edge_pixels
+from printability.mmc._band_records import (
+    BandPixels,
+    ChainModel,
+    PieceArrays,
+    PixelLists,
+    Rings,
 )
+from printability.mmc._band_settle import settle_pixels
+from printability.mmc._band_slides import pivot_centres, slide_intervals
 
 __all__ = [
     "EPS_SLIDE",
+    "BandBoundary",
+    "BandFootprint",
     "BandPieces",
+    "BandRaster",
     "band_pieces",
     "edges_of",
     "neighbour_pairs",
@@ -176,9 +184,6 @@ def neighbour_pairs(edges: np.ndarray, reach: float) -> tuple[np.ndarray, np.nda
     ptr = np.zeros(m + 1, np.int64)
     np.add.at(ptr, a + 1, 1)
     return np.cumsum(ptr), b.astype(np.int64)
-
-
-# --------------------------------------------------------------------------- slides
 
 
 # --------------------------------------------------------------------------- pieces
@@ -307,30 +312,57 @@ def _csr(kernel, *args) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- quadtree
 
 
+@dataclass(frozen=True, eq=False)
+class BandRaster:
+    """The raster's view of the band (world coordinates, mm).
 
-
-def settle_band(region, grid: Grid, cls: np.ndarray, cov: np.ndarray, uncertain: np.ndarray,
-                outer: np.ndarray, edges: np.ndarray, prev_: np.ndarray, next_: np.ndarray,
-                ptr: np.ndarray,
-                idx: np.ndarray, lmats: list[np.ndarray], cells: np.ndarray, a: float,
-                b: float, delta: float, *, max_level: int = 6, coarse_angles: int = 24,
-                full_levels: int = 4) -> dict[str, float]:
-    """Certified bounds and an estimate of λ(G \\ S) over the uncertain pixels.
-
-    Parameters
+    Attributes
     ----------
-    region
-        G.
     grid, cls, cov
         The raster's grid, classification and covered fractions.
     uncertain
         Boolean ``(ny, nx)``: the pixels to settle (cov > 0, not in S_in).
     outer
         Boolean ``(ny, nx)``: the raster's outer S (a pixel outside it is wholly lost).
+    """
+
+    grid: Grid
+    cls: np.ndarray
+    cov: np.ndarray
+    uncertain: np.ndarray
+    outer: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class BandBoundary:
+    """∂G as edges, with their rings and neighbours.
+
+    Attributes
+    ----------
     edges, prev_, next_
         ∂G's edges and their neighbours on the ring (:func:`edges_of`).
     ptr, idx
         Neighbours within 2.02·a (:func:`neighbour_pairs`).
+    """
+
+    edges: np.ndarray
+    prev_: np.ndarray
+    next_: np.ndarray
+    ptr: np.ndarray
+    idx: np.ndarray
+
+    @property
+    def rings(self) -> Rings:
+        """The edges and their ring neighbours as the kernels' record."""
+        return Rings(self.edges, self.prev_, self.next_)
+
+
+@dataclass(frozen=True, eq=False)
+class BandFootprint:
+    """The footprint (one circle or ellipse) at the sampled angles and over the angle cells.
+
+    Attributes
+    ----------
     lmats
         L per sampled angle: the pieces are made for these.
     cells
@@ -343,6 +375,30 @@ def settle_band(region, grid: Grid, cls: np.ndarray, cov: np.ndarray, uncertain:
         A bound on how far the footprint's boundary moves within half a cell, mm: its
         support function changes by at most (a − b) per radian (the largest
         |∂h/∂ψ| of an ellipse), so (a − b)·half-width.
+    """
+
+    lmats: list[np.ndarray]
+    cells: np.ndarray
+    a: float
+    b: float
+    delta: float
+
+
+def settle_band(region, raster: BandRaster, boundary: BandBoundary, footprint: BandFootprint,
+                *, max_level: int = 6, coarse_angles: int = 24, full_levels: int = 4
+                ) -> dict[str, float]:
+    """Certified bounds and an estimate of λ(G \\ S) over the uncertain pixels.
+
+    Parameters
+    ----------
+    region
+        G.
+    raster
+        The raster's pixels: which to settle and what the raster knows of them.
+    boundary
+        ∂G's edges and their neighbours.
+    footprint
+        The footprint's matrices per sampled angle and its angle cells.
     max_level
         Leaves down to h / 2^max_level.
     coarse_angles
@@ -385,12 +441,13 @@ def settle_band(region, grid: Grid, cls: np.ndarray, cov: np.ndarray, uncertain:
     vertex are the wedge of a corner; a whole convex ring, an island smaller than the
     nozzle.)
     """
+    grid, edges, lmats = raster.grid, boundary.edges, footprint.lmats
     scale = float(np.max(np.abs(edges))) if len(edges) else 1.0
     tau = 1e-12 * scale + 1e-9 * grid.h
     step = max(1, math.ceil(len(lmats) / max(coarse_angles, 1)))
-    coarse = band_pieces(region, edges, prev_, ptr, idx, lmats[::step], grid, cls)
-    args = (grid, cls, cov, outer, edges, prev_, next_, cells, a, b, delta, max_level, tau)
-    pix_i, pix_j, up, lo, und, est, reopen = _settle(uncertain, coarse, *args)
+    coarse = _pieces_of(region, raster, boundary, lmats[::step])
+    pix_i, pix_j, up, lo, und, est, reopen = _settle(raster.uncertain, coarse, raster, boundary,
+                                                     footprint, max_level=max_level, tau=tau)
     slack = coarse.slack + tau * _bases(coarse)
     count = len(coarse)
     # pixels where pieces of more angles may settle more: leaves no piece covered and none
@@ -399,10 +456,11 @@ def settle_band(region, grid: Grid, cls: np.ndarray, cov: np.ndarray, uncertain:
     if step > 1 and open_.any():
         residual = np.zeros(grid.shape, bool)
         residual[pix_i[open_], pix_j[open_]] = True
-        want = _edges_near(residual, edges, grid, 2.02 * max(a, b))
-        full = band_pieces(region, edges, prev_, ptr, idx, lmats, grid, cls, want=want)
-        args2 = (*args[:-2], min(full_levels, max_level), tau)
-        ri, rj, up2, lo2, und2, est2, _ = _settle(residual, full, *args2)
+        want = _edges_near(residual, edges, grid, 2.02 * max(footprint.a, footprint.b))
+        full = _pieces_of(region, raster, boundary, lmats, want=want)
+        ri, rj, up2, lo2, und2, est2, _ = _settle(residual, full, raster, boundary, footprint,
+                                                  max_level=min(full_levels, max_level),
+                                                  tau=tau)
         pos = np.full(grid.shape, -1, np.int64)
         pos[pix_i, pix_j] = np.arange(len(pix_i))
         k = pos[ri, rj]
@@ -414,6 +472,13 @@ def settle_band(region, grid: Grid, cls: np.ndarray, cov: np.ndarray, uncertain:
         count += len(full)
     return {"upper": float(up.sum()) + slack, "lower": float(lo.sum()),
             "estimate": float(est.sum()), "undecided": float(und.sum()), "pieces": count}
+
+
+def _pieces_of(region, raster: BandRaster, boundary: BandBoundary, lmats: list[np.ndarray], *,
+               want: np.ndarray | None = None) -> BandPieces:
+    """:func:`band_pieces` of the boundary at the angles of ``lmats``."""
+    return band_pieces(region, boundary.edges, boundary.prev_, boundary.ptr, boundary.idx,
+                       lmats, raster.grid, raster.cls, want=want)
 
 
 def _bases(pieces: BandPieces) -> float:
@@ -439,31 +504,34 @@ def _edges_near(pixels: np.ndarray, edges: np.ndarray, grid: Grid, reach: float
     return want
 
 
-def _settle(uncertain: np.ndarray, pieces: BandPieces, grid: Grid, cls: np.ndarray,
-            cov: np.ndarray, outer: np.ndarray, edges: np.ndarray, prev_: np.ndarray,
-            next_: np.ndarray, cells: np.ndarray, a: float, b: float, delta: float,
-            max_level: int, tau: float):
+def _settle(uncertain: np.ndarray, pieces: BandPieces, raster: BandRaster,
+            boundary: BandBoundary, footprint: BandFootprint, *, max_level: int, tau: float):
     """One tier of :func:`settle_band`: per-pixel arrays over the ``uncertain`` pixels."""
+    grid, edges = raster.grid, boundary.edges
+    a, b = footprint.a, footprint.b
     pix_i, pix_j = np.nonzero(uncertain)
     index = np.full(grid.shape, -1, np.int64)
     index[pix_i, pix_j] = np.arange(len(pix_i))
     scale = float(np.max(np.abs(edges))) if len(edges) else 1.0
     eps = 1e-6 * grid.h + 1e-12 * scale
     n = len(pix_i)
-    eptr, eidx = _csr(_edge_pixels, n, edges, index, grid.x0, grid.y0, grid.h, grid.ny,
+    eptr, eidx = _csr(edge_pixels, n, edges, index, grid.x0, grid.y0, grid.h, grid.ny,
                       grid.nx, eps)
     reach = 2.0 * max(a, b) * (1.0 + 1e-9) + tau
     # edges within reach of a pixel's box: grow each edge's pixel test by the reach
-    nptr, nidx = _csr(_edge_pixels, n, edges, index, grid.x0, grid.y0, grid.h, grid.ny,
+    nptr, nidx = _csr(edge_pixels, n, edges, index, grid.x0, grid.y0, grid.h, grid.ny,
                       grid.nx, reach + eps)
-    t = 1 << _TILE
+    t = 1 << TILE
     tiles = np.zeros(((grid.ny + t - 1) // t, (grid.nx + t - 1) // t), np.bool_)
-    tiles[pix_i >> _TILE, pix_j >> _TILE] = True
-    pptr, pidx = _csr(_bucket, n, pieces.quads, pieces.caps, index, tiles, grid.x0, grid.y0,
-                      grid.h, grid.ny, grid.nx)
-    upper, lower, und, est, reopen = _settle_pixels(
-        pix_i.astype(np.int64), pix_j.astype(np.int64), cls, cov, outer, grid.x0, grid.y0,
-        grid.h, edges, prev_, next_, eptr, eidx, nptr, nidx, pieces.quads, pieces.quad_edge,
-        pieces.caps, pptr, pidx, np.ascontiguousarray(cells, dtype=float), float(a), float(b),
-        float(delta), reach, max_level, tau)
+    tiles[pix_i >> TILE, pix_j >> TILE] = True
+    pptr, pidx = _csr(bucket_pieces, n, pieces.quads, pieces.caps, index, tiles, grid.x0,
+                      grid.y0, grid.h, grid.ny, grid.nx)
+    band = BandPixels(pix_i.astype(np.int64), pix_j.astype(np.int64), raster.cls, raster.cov,
+                      raster.outer, grid.x0, grid.y0, grid.h)
+    lists = PixelLists(eptr, eidx, nptr, nidx, pptr, pidx)
+    model = ChainModel(np.ascontiguousarray(footprint.cells, dtype=float), float(a), float(b),
+                       float(footprint.delta), reach)
+    upper, lower, und, est, reopen = settle_pixels(
+        band, boundary.rings, lists, PieceArrays(pieces.quads, pieces.quad_edge, pieces.caps),
+        model, max_level, tau)
     return pix_i, pix_j, upper, lower, und, est, reopen

@@ -34,7 +34,7 @@ import numpy as np
 
 from printability.mmc import _raster_kernels as _k
 
-__all__ = ["_mask_runs", "_opening_pass"]
+__all__ = ["PassResult", "_mask_runs", "_opening_pass"]
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,9 @@ def _to_runs(runs: list[tuple[int, int, int]], *, dilate: bool, order_from_centr
 
 
 @dataclass
-class _PassResult:
+class PassResult:
+    """What an opening pass leaves: its union and, per angle, P on the band's words."""
+
     union: np.ndarray        # packed S of the pass
     base: np.ndarray         # packed deep P (held at every angle)
     band_i: np.ndarray
@@ -107,7 +109,7 @@ def _last_mask(nx: int) -> np.uint64:
 
 def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dilate_k: np.ndarray,
                   radius: int, nx: int, *, store: bool, tick: Callable[[], None],
-                  check: Callable[[int], None] | None = None) -> _PassResult:
+                  check: Callable[[int], None] | None = None) -> PassResult:
     """∪_k (inp ⊖ erode_k[k]) ⊕ dilate_k[k], ∩ target, on packed rows (see module docstring).
 
     ``check(band_words)`` is called before the per-angle words are allocated.
@@ -177,5 +179,5 @@ def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dila
             _k.update_tables(work, t_or, pr, pw, sel_i, sel_w, False)
             _k.dilate_words(fo, nwp, flat(di[k], t_or), reach, union)
         tick()
-    return _PassResult(union, deep, band_i, band_w, values)
+    return PassResult(union, deep, band_i, band_w, values)
 

@@ -100,6 +100,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
@@ -110,7 +111,8 @@ from printability.errors import InputError
 from printability.geometry import Grid, Raster, as_region
 from printability.machine import Machine
 from printability.mmc import _raster_kernels as _k
-from printability.mmc._raster_passes import _opening_pass
+from printability.mmc import _raster_runs as _runs
+from printability.mmc._raster_passes import PassResult, _opening_pass
 from printability.mmc._raster_prepare import (
     RasterProblem,
     _check_memory,
@@ -154,7 +156,7 @@ def _bits_to_geometry(bits: np.ndarray, grid: Grid) -> BaseGeometry:
     whose interior point falls on a set pixel are kept. Faces touch at most
     at corners, so their MultiPolygon is valid. Cost O(ny·nx/64 + boundary).
     """
-    seg = _k.boundary_segments(bits, grid.nx)
+    seg = _runs.boundary_segments(bits, grid.nx)
     if len(seg) == 0:
         return MultiPolygon()
     ends = np.stack([seg[:, :2], seg[:, 2:]], axis=1) * grid.h + np.array([grid.x0, grid.y0])
@@ -196,8 +198,8 @@ def _components(packed: PackedMasks, angles: np.ndarray, wrap: bool, grid: Grid
     counts = []
     total = 0
     for k in range(n):
-        rr, rs, re = _k.extract_runs(packed.bits(k), grid.nx)
-        lab, cnt = _k.label_runs(rr, rs, re)
+        rr, rs, re = _runs.extract_runs(packed.bits(k), grid.nx)
+        lab, cnt = _runs.label_runs(rr, rs, re)
         runs.append((rr, rs, re))
         labels.append(lab)
         counts.append(int(cnt))
@@ -208,7 +210,7 @@ def _components(packed: PackedMasks, angles: np.ndarray, wrap: bool, grid: Grid
         steps.append((n - 1, 0))
     for k, k2 in steps:
         a, b = runs[k], runs[k2]
-        pr = _k.overlap_pairs(a[0], a[1], a[2], labels[k], b[0], b[1], b[2], labels[k2])
+        pr = _runs.overlap_pairs(a[0], a[1], a[2], labels[k], b[0], b[1], b[2], labels[k2])
         code = np.unique(pr[:, 0] * (1 << 32) + pr[:, 1])
         pairs[(k, k2)] = set(zip((code >> 32).tolist(), (code & 0xFFFFFFFF).tolist(),
                                  strict=True))
@@ -319,9 +321,10 @@ def _settle_band(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, s_inner: 
     uncertain = (prob.cov > 0.0) & ~s_inner
     # the support function of an ellipse turns by at most (a − b) per radian (_band)
     delta = (a - b) * half * (1.0 + 1e-9)
-    out = _band.settle_band(g, prob.grid, prob.cls, prob.cov, uncertain, outer_mask, edges,
-                            prev_, next_, ptr, idx, lmats, cells, a, b, delta,
-                            max_level=BAND_LEVELS)
+    out = _band.settle_band(
+        g, _band.BandRaster(prob.grid, prob.cls, prob.cov, uncertain, outer_mask),
+        _band.BandBoundary(edges, prev_, next_, ptr, idx),
+        _band.BandFootprint(lmats, cells, a, b, delta), max_level=BAND_LEVELS)
     out.update(pixels=int(np.count_nonzero(uncertain)), max_level=BAND_LEVELS)
     return out
 
@@ -389,9 +392,49 @@ def mmc_raster(region: MultiPolygon, nozzle: Nozzle, machine: Machine, *,
     g = as_region(region)
     prob = prepare_raster(g, nozzle, machine, settings=settings)
     grid = prob.grid
+    notes = _grid_notes(prob)
+    passes = _opening_passes(prob, settings)
+    bounds = _lost_bounds(g, nozzle, prob, passes, settle_band=settle_band)
+    notes.extend(bounds.notes)
+    inner = passes.inner
+    motion = _motion_restriction(prob, inner)
+    components, cnotes = _components(motion.packed, prob.angles, prob.wrap, grid)
+    notes.extend(cnotes)
+    as_built, anotes = _as_built(inner.union, grid)
+    notes.extend(anotes)
+    target_area = bounds.target_area
+    return MMCResult(
+        engine="raster",
+        nozzle=nozzle,
+        machine=machine,
+        target=g,
+        as_built=as_built,
+        target_area=target_area,
+        as_built_area=target_area - bounds.lost,
+        lost_area=bounds.lost,
+        lost_area_bounds=(bounds.lo, bounds.hi),
+        motion=motion,
+        components=components,
+        resolution=grid.h,
+        angle_step=prob.angle_gap,
+        elapsed=time.perf_counter() - t_start,
+        as_built_raster=Raster(grid, bounds.s_inner),
+        notes=tuple(notes),
+        extra={"inner_as_built_area": bounds.inner_area,
+               "outer_as_built_area": bounds.outer_area,
+               "estimate_lost_area": bounds.lost_est, "band_words": len(inner.band_i),
+               "grid": grid, "angular_margin": prob.delta,
+               **({"band": bounds.settled} if bounds.settled is not None else {})},
+    )
+
+
+# --------------------------------------------------------------------------- stages
+
+
+def _grid_notes(prob: RasterProblem) -> list[str]:
+    """The notes on the grid and the angles (and on kernels too coarse to fill a pixel)."""
+    grid = prob.grid
     n = len(prob.angles)
-    cls = prob.cls
-    inside = _k.pack_bits(cls == 3)
     notes = [
         f"raster h = {grid.h:g} mm on {grid.nx} × {grid.ny} pixels, {n} angle(s)"
         + (f" (gap {prob.angle_gap:g}°, angular margin δ = {prob.delta:.4g} mm)" if n > 1 else ""),
@@ -399,7 +442,24 @@ def mmc_raster(region: MultiPolygon, nozzle: Nozzle, machine: Machine, *,
     if not prob.full.any(axis=(1, 2)).all():
         notes.append("at some angles no pixel lies wholly inside the nozzle: the inner result "
                      "there is empty; use a finer resolution")
+    return notes
 
+
+@dataclass(frozen=True, eq=False)
+class _Passes:
+    """The three opening passes: inner (stores P per angle), outer and estimate."""
+
+    inner: PassResult
+    outer: PassResult
+    est: PassResult
+
+
+def _opening_passes(prob: RasterProblem, settings: Settings) -> _Passes:
+    """The inner, outer and estimate openings of the module docstring, on packed rows."""
+    grid = prob.grid
+    n = len(prob.angles)
+    cls = prob.cls
+    inside = _k.pack_bits(cls == 3)
     with _progress(settings.progress, 3 * n) as tick:
         # a pixel wholly inside a closed footprint makes it touch its 8 neighbours, which
         # must then be inside pixels: S_inner ⊆ I ⊖ (3×3 box)
@@ -417,22 +477,45 @@ def mmc_raster(region: MultiPolygon, nozzle: Nozzle, machine: Machine, *,
         est = _opening_pass(centre_in, centre_in, prob.centre, prob.centre, prob.radius,
                             grid.nx, store=False, tick=tick)
         del some, centre_in
+    return _Passes(inner, outer, est)
 
+
+@dataclass(frozen=True, eq=False)
+class _Bounds:
+    """The lost area: its estimate, certified bounds and what they were made from."""
+
+    target_area: float
+    lo: float
+    hi: float
+    lost: float              # the estimate clipped into [lo, hi]
+    lost_est: float          # the estimate before clipping
+    inner_area: float
+    outer_area: float
+    s_inner: np.ndarray      # boolean S_inner
+    settled: dict | None     # the band settling's figures, when it ran
+    notes: list[str]
+
+
+def _lost_bounds(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, passes: _Passes, *,
+                 settle_band: bool) -> _Bounds:
+    """lo, hi and the estimate from the passes, tightened by the band settling when it
+    applies (each pair is certified: the tighter end of each side is kept)."""
+    grid = prob.grid
     h2 = grid.pixel_area
     target_area = float(g.area)
-    s_inner = _k.unpack_bits(inner.union, grid.nx)
+    s_inner = _k.unpack_bits(passes.inner.union, grid.nx)
     inner_area = float(np.count_nonzero(s_inner)) * h2
-    outer_mask = _k.unpack_bits(outer.union, grid.nx)
+    outer_mask = _k.unpack_bits(passes.outer.union, grid.nx)
     outer_area = float(prob.cov[outer_mask].sum()) * h2
     tol = 1e-9 * target_area
     lo = max(0.0, target_area - outer_area - tol)
     hi = min(target_area, target_area - inner_area + tol)
     # both areas on the same centre-sampled raster, so the sampling of ∂G cancels out
-    lost_est = (int(np.count_nonzero(cls >= 2)) - _popcount(est.union)) * h2
+    lost_est = (int(np.count_nonzero(prob.cls >= 2)) - _popcount(passes.est.union)) * h2
     settled = None
+    notes = []
     if settle_band and _band_settles(nozzle):
         settled = _settle_band(g, nozzle, prob, s_inner, outer_mask)
-        # each pair is certified: keep the tighter end of each side
         hi = min(hi, min(target_area, settled["upper"] + tol))
         lo = max(lo, settled["lower"] - tol)
         if lo > hi:
@@ -447,7 +530,14 @@ def mmc_raster(region: MultiPolygon, nozzle: Nozzle, machine: Machine, *,
             "undecided)")
     del outer_mask
     lost = min(max(lost_est, lo), hi)
+    return _Bounds(target_area, lo, hi, lost, lost_est, inner_area, outer_area, s_inner,
+                   settled, notes)
 
+
+def _motion_restriction(prob: RasterProblem, inner: PassResult) -> MotionRestriction:
+    """P per angle (packed; also as booleans when small), and how many angles fit per pixel."""
+    grid = prob.grid
+    n = len(prob.angles)
     flat_words = (inner.band_i * inner.base.shape[1] + inner.band_w).astype(np.int64)
     packed = PackedMasks(grid, inner.base, flat_words, inner.values)
     count = np.zeros(grid.shape, np.uint16)
@@ -455,37 +545,14 @@ def mmc_raster(region: MultiPolygon, nozzle: Nozzle, machine: Machine, *,
     masks = None
     if n * grid.nx * grid.ny <= _MASKS_LIMIT:
         masks = Raster(grid, np.stack([packed.mask(k).data for k in range(n)]))
-    motion = MotionRestriction(angles=prob.angles.copy(), masks=masks,
-                               count=Raster(grid, count), packed=packed)
-    components, cnotes = _components(packed, prob.angles, prob.wrap, grid)
-    notes.extend(cnotes)
+    return MotionRestriction(angles=prob.angles.copy(), masks=masks,
+                             count=Raster(grid, count), packed=packed)
 
-    rr, _, _ = _k.extract_runs(inner.union, grid.nx)
-    as_built = None
+
+def _as_built(union: np.ndarray, grid: Grid) -> tuple[BaseGeometry | None, list[str]]:
+    """S_inner as geometry when its runs are few enough (else None and a note)."""
+    rr, _, _ = _runs.extract_runs(union, grid.nx)
     if len(rr) <= _VECTOR_RUNS:
-        as_built = _bits_to_geometry(inner.union, grid)
-    else:
-        notes.append(f"as-built geometry not vectorised ({len(rr):,} pixel runs); "
-                     "see as_built_raster")
-    return MMCResult(
-        engine="raster",
-        nozzle=nozzle,
-        machine=machine,
-        target=g,
-        as_built=as_built,
-        target_area=target_area,
-        as_built_area=target_area - lost,
-        lost_area=lost,
-        lost_area_bounds=(lo, hi),
-        motion=motion,
-        components=components,
-        resolution=grid.h,
-        angle_step=prob.angle_gap,
-        elapsed=time.perf_counter() - t_start,
-        as_built_raster=Raster(grid, s_inner),
-        notes=tuple(notes),
-        extra={"inner_as_built_area": inner_area, "outer_as_built_area": outer_area,
-               "estimate_lost_area": lost_est, "band_words": len(inner.band_i),
-               "grid": grid, "angular_margin": prob.delta,
-               **({"band": settled} if settled is not None else {})},
-    )
+        return _bits_to_geometry(union, grid), []
+    return None, [f"as-built geometry not vectorised ({len(rr):,} pixel runs); "
+                  "see as_built_raster"]

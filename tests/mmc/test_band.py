@@ -30,7 +30,9 @@ from shapes import (
 from printability.geometry import as_region, rotation_matrix
 from printability.machine import parse_machine
 from printability.mmc import _band, compute_mmc
-from printability.mmc import _raster_kernels as rk
+from printability.mmc._band_geometry import poly_dist
+from printability.mmc._band_lower import min_support
+from printability.mmc._band_slides import blocked_interval
 from printability.mmc._raster_prepare import _rings, prepare_raster
 from printability.mmc.raster import mmc_raster
 from printability.mmc.result import MMCInternalError
@@ -178,7 +180,7 @@ def test_circle_pieces_lie_inside_the_exact_opening():
 @example(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 3.5799398179312725e-162, 0.75)
 def test_blocked_interval_matches_brute_force(p0x, p0y, ang, g0x, g0y, g1x, g1y, r):
     tx, ty = math.cos(ang), math.sin(ang)
-    lo, hi = rk._blocked(p0x, p0y, tx, ty, -ty, tx, g0x, g0y, g1x, g1y, r)
+    lo, hi = blocked_interval(p0x, p0y, tx, ty, -ty, tx, g0x, g0y, g1x, g1y, r)
     g0, g1 = np.array([g0x, g0y]), np.array([g1x, g1y])
     for s in np.linspace(-8, 8, 161):
         # the distance to the segment, bracketed by a fine sampling of it (shapely gives
@@ -198,7 +200,7 @@ def test_blocked_interval_matches_brute_force(p0x, p0y, ang, g0x, g0y, g1x, g1y,
 @hyp_settings(max_examples=300, deadline=None)
 def test_min_support_matches_brute_force(alpha, theta, hw, a, b):
     a, b = max(a, b), min(a, b)
-    m = rk._min_support(alpha, theta, hw, a, b)
+    m = min_support(alpha, theta, hw, a, b)
     ts = np.linspace(theta - hw, theta + hw, 2001)
     psi = alpha - ts
     brute = np.sqrt(a * a * np.cos(psi) ** 2 + b * b * np.sin(psi) ** 2).min()
@@ -213,8 +215,8 @@ def test_polygon_distance_matches_shapely(pts_a, pts_b):
     assume(all(isinstance(h, Polygon) and h.area > 1e-3 for h in hulls))
     xy = [np.asarray(shapely.geometry.polygon.orient(h, 1.0).exterior.coords)[:-1]
           for h in hulls]
-    d = rk._poly_dist(xy[0][:, 0].copy(), xy[0][:, 1].copy(), len(xy[0]),
-                         xy[1][:, 0].copy(), xy[1][:, 1].copy(), len(xy[1]))
+    d = poly_dist(xy[0][:, 0].copy(), xy[0][:, 1].copy(), len(xy[0]),
+                  xy[1][:, 0].copy(), xy[1][:, 1].copy(), len(xy[1]))
     assert d == pytest.approx(hulls[0].distance(hulls[1]), abs=1e-9)
 
 

@@ -18,6 +18,7 @@ from printability.machine import parse_machine
 from printability.mmc import _raster_kernels as rk
 from printability.mmc import compute_mmc
 from printability.mmc._raster_passes import _mask_runs, _opening_pass
+from printability.mmc._raster_runs import extract_runs, label_runs
 from printability.mmc.raster import (
     _erode3,
     mmc_raster,
@@ -231,8 +232,8 @@ def test_run_labels_match_scipy_label():
     rng = np.random.default_rng(3)
     for _ in range(5):
         mask = ndimage.binary_opening(rng.random((70, 150)) > 0.45)
-        rr, rs, re = rk.extract_runs(rk.pack_bits(mask), mask.shape[1])
-        labels, count = rk.label_runs(rr, rs, re)
+        rr, rs, re = extract_runs(rk.pack_bits(mask), mask.shape[1])
+        labels, count = label_runs(rr, rs, re)
         ref, nref = ndimage.label(mask)
         assert count == nref
         ours = np.full(mask.shape, -1)
