@@ -56,7 +56,7 @@ def choose_engine(nozzle: Nozzle, machine: Machine, region: Any = None) -> str:
     """
     if not machine.separable:
         return "sampled"
-    if machine.kind == "xy" or nozzle.symmetry_period == 0.0:
+    if not machine.turns(nozzle):
         if region is not None and shapely.get_num_coordinates(region) > EXACT_VERTEX_LIMIT:
             return "raster"
         return "exact"

@@ -92,7 +92,7 @@ def sample_space(
     ``settings.resolution`` restricted to positions where the nozzle fits in the
     region's bounding box at some sampled angle, and the machine's angles.
     """
-    if machine.kind == "chain":
+    if not machine.separable:  # a chain: its joints' values
         values, kinds, wrap, steps, levers, reaches = [], [], [], [], [], []
         joints = machine.joints
         for j, joint in enumerate(joints):

@@ -169,7 +169,7 @@ def _chunks(space: SampleSpace, machine: Machine, nozzle: Nozzle, g: BaseGeometr
     """
     n = space.size
     keep = np.ones(space.shape[0], dtype=bool)
-    if machine.kind == "chain" and len(machine.joints) >= 2:
+    if not machine.separable and len(machine.joints) >= 2:
         joints = machine.joints
         head = replace(machine, joints=joints[:1], tool_offset=joints[1].offset,
                        tool_angle=0.0)
@@ -244,7 +244,7 @@ def mmc_sampled(
     space = sample_space(g, nozzle, machine, settings=settings)
     orifices = orifices_of(nozzle, quad_segs=settings.quad_segs)
     n = space.size
-    is_chain = machine.kind == "chain"
+    is_chain = not machine.separable
     resolution = space.slack if is_chain else float(settings.resolution)
     rot_steps = [s for s, k in zip(space.steps, space.kinds, strict=True) if k != "prismatic"]
     angle_step = max(rot_steps) if rot_steps and (is_chain or space.levers[-1] > 0) else 0.0
