@@ -40,15 +40,14 @@ import numba
 import numpy as np
 
 from gcode.writer import format_number
-from printability._group_kernel import group_pieces
 from printability._text_kernel import fixed_digits, hypot, nearest, put_fixed, reserve
 from printability.base.kernel_cache import guard as _guard_kernel_caches
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
-# group_pieces: the generator imports it from here; hypot: the tests
+# hypot: the tests import it from here
 __all__ = ["DECLINED", "EMIT_OPTIONS", "EMIT_STATE", "OK", "TRAVEL", "Pieces", "emit",
-           "emit_pieces", "group_pieces", "hypot"]
+           "emit_pieces", "hypot"]
 
 OK = 0
 DECLINED = 1

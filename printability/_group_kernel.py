@@ -4,7 +4,7 @@ for the compiled writer (:func:`printability._emit_kernel.emit`), with the same 
 A move is one piece at its planned orientation, or the planner's pieces where it is split;
 each piece's bead width is the nozzle's across its direction
 (:meth:`printability.nozzle.Nozzle.bead_width`, for circles, ellipses and rectangles:
-:data:`FOOTPRINT_KINDS`). :func:`pieces_of` takes the group's moves, the planner's pieces
+:func:`measures`). :func:`pieces_of` takes the group's moves, the planner's pieces
 and the nozzle's orifice (:class:`Orifice`) as tuples of columns, and returns the pieces as
 :class:`~printability._emit_kernel.Pieces`' columns.
 
@@ -21,20 +21,18 @@ import numpy as np
 
 from printability._text_kernel import hypot
 from printability.base.kernel_cache import guard as _guard_kernel_caches
+from printability.shapes import BOX, CONIC
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
-__all__ = ["FOOTPRINT_KINDS", "Orifice", "group_pieces", "orifice_of", "pieces_of"]
-
-FOOTPRINT_KINDS = {"circle": 0, "ellipse": 0, "rect": 1}
-"""The footprints :func:`pieces_of` measures (others: the generator measures in Python)."""
+__all__ = ["Orifice", "measures", "orifice_of", "pieces_of"]
 
 
 class Orifice(NamedTuple):
-    """The nozzle's footprints as columns: kind (:data:`FOOTPRINT_KINDS`), semi-axes or half
-    sides, centre and rotation in the nozzle's frame. (Columns, not rows of a record:
-    made on each call of the generator's, a table cost a third of :func:`pieces_of`'s
-    time.)"""
+    """The nozzle's footprints as columns: shape code
+    (:attr:`~printability.shapes.Footprint.code`), semi-axes or half sides, centre and
+    rotation in the nozzle's frame. (Columns, not rows of a record: made on each call of the
+    generator's, a table cost a third of :func:`pieces_of`'s time.)"""
 
     kind: np.ndarray
     a: np.ndarray
@@ -54,16 +52,19 @@ def _bead_width(direction, angle, mount, fk, fa, fb, fcx, fcy, frot):  # pragma:
     ny = math.cos(theta)
     lo = math.inf
     hi = -math.inf
+    t = math.radians(mount + angle)
+    ct = math.cos(t)
+    st = math.sin(t)
     for j in range(len(fk)):
-        phi = math.radians(mount + angle + frot[j])
+        cx = ct * fcx[j] - st * fcy[j]  # the centre turns with the nozzle
+        cy = st * fcx[j] + ct * fcy[j]
+        phi = math.radians(mount + angle + frot[j])  # the orifice's own frame
         c = math.cos(phi)
         s = math.sin(phi)
-        cx = c * fcx[j] - s * fcy[j]
-        cy = s * fcx[j] + c * fcy[j]
         mid = cx * nx + cy * ny
         ux = c * nx + s * ny
         uy = -s * nx + c * ny
-        if fk[j] == 0:
+        if fk[j] == CONIC:
             half = hypot(fa[j] * ux, fb[j] * uy)
         else:
             half = abs(fa[j] * ux) + abs(fb[j] * uy)
@@ -148,20 +149,16 @@ def pieces_of(group, rows, orifice, mount, turns, width, acc):  # pragma: no cov
     return ax, ay, bx, by, phi, w, fo
 
 
+def measures(footprints) -> bool:
+    """Whether :func:`pieces_of` measures these footprints (conics and rectangles; the
+    generator measures polygons in Python)."""
+    return all(f.code in (CONIC, BOX) for f in footprints)
+
+
 def orifice_of(footprints) -> Orifice:
-    """The :class:`Orifice` of a nozzle's footprints (of the kinds in
-    :data:`FOOTPRINT_KINDS`: ``kind``, ``a``, ``b``, ``center``, ``rotation``)."""
-    return Orifice(np.array([FOOTPRINT_KINDS[f.kind] for f in footprints], dtype=np.int64),
+    """The :class:`Orifice` of a nozzle's footprints (conics and rectangles:
+    :func:`measures`)."""
+    return Orifice(np.array([f.code for f in footprints], dtype=np.int64),
                    *(np.array(v, dtype=float) for v in zip(*[
                        (f.a, f.b, f.center[0], f.center[1], f.rotation) for f in footprints],
                        strict=True)))
-
-
-def group_pieces(*columns):
-    """:func:`pieces_of` called with its arguments flattened, in the order
-    ``p0, p1, seg_len, angle, fold, split, lo, hi, t0, t1, angle, turns, width, mount,
-    kind, a, b, cx, cy, rotation, acc`` (the orifice's columns): the generator's
-    call (``printability.generate._pieces``) until it passes the records."""
-    turns, width, mount = columns[11:14]
-    return pieces_of(columns[:8], columns[8:11], columns[14:20], mount, turns, width,
-                     columns[20])

@@ -42,7 +42,8 @@ from gcode.flavors import Flavor, RotaryAxis
 from gcode.printtime import estimate_print_time, format_duration
 from gcode.writer import Emitter, WriterOptions, header_lines
 from printability import __version__
-from printability._emit_kernel import emit, group_pieces
+from printability._emit_kernel import emit
+from printability._group_kernel import measures, orifice_of, pieces_of
 from printability.errors import InputError, PrintabilityOSError
 from printability.layers import LayerStack
 from printability.machine import Machine, parse_machine
@@ -416,16 +417,13 @@ def _placement(layers: LayerStack, mach: Machine, *, center: bool) -> tuple[floa
     return (0.0, 0.0)
 
 
-_KINDS = {"circle": 0, "ellipse": 0, "rect": 1}
-
-
 def _pieces(p0: np.ndarray, p1: np.ndarray, plan, noz: Nozzle, *, turns: bool, width: float,
             acc: np.ndarray) -> tuple:
     """The pieces of one group's moves as :func:`printability._emit_kernel.emit` takes them
     (columns ax, ay, bx, by, phi, w, fold; NaN for no orientation, no turn while moving),
     with ``acc = [extruded, layer length, layer dropped, last angle]`` updated in order.
 
-    Compiled (:func:`printability._emit_kernel.group_pieces`) for circles, ellipses and
+    Compiled (:func:`printability._group_kernel.pieces_of`) for circles, ellipses and
     rectangles; in Python, the same operations, for polygon orifices.
     """
     n = len(p0)
@@ -434,19 +432,15 @@ def _pieces(p0: np.ndarray, p1: np.ndarray, plan, noz: Nozzle, *, turns: bool, w
     if plan.pieces:
         split[np.fromiter(plan.pieces, np.int64, len(plan.pieces))] = True
     move, rt0, rt1, rphi = (np.asarray(c) for c in plan.piece_rows)
-    if all(f.kind in _KINDS for f in noz.footprints):
+    if measures(noz.footprints):
         lo = np.searchsorted(move, np.arange(n), "left")
         hi = np.searchsorted(move, np.arange(n), "right")
-        fp = noz.footprints
-        return group_pieces(
-            np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
-            seg_len, np.asarray(plan.angle, dtype=float), np.asarray(plan.fold, dtype=bool),
-            split, lo, hi, rt0.astype(float), rt1.astype(float), rphi.astype(float),
-            turns, float(width), float(noz.mount_angle),
-            np.array([_KINDS[f.kind] for f in fp], dtype=np.int64),
-            *(np.array(v, dtype=float) for v in zip(*[(f.a, f.b, f.center[0], f.center[1],
-                                                       f.rotation) for f in fp], strict=True)),
-            acc)
+        group = (np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
+                 seg_len, np.asarray(plan.angle, dtype=float), np.asarray(plan.fold, dtype=bool),
+                 split, lo, hi)
+        rows = (rt0.astype(float), rt1.astype(float), rphi.astype(float))
+        return pieces_of(group, rows, orifice_of(noz.footprints), float(noz.mount_angle),
+                         turns, float(width), acc)
     extruded, layer_len, layer_drop, prev_angle = acc.tolist()
     lens = seg_len.tolist()
     angles = plan.angle.tolist()

@@ -1,11 +1,12 @@
-"""Nozzle footprints and the nozzle SPEC syntax.
+"""Nozzles and the nozzle SPEC syntax.
 
-A :class:`Nozzle` is one or several orifices (:class:`Footprint`) fixed on one
-carriage, given in the nozzle frame (origin = the point the machine positions
-and the axis the rotary joint turns about; see :mod:`printability.geometry`).
+A :class:`Nozzle` is one or several orifices (:class:`~printability.shapes.Footprint`, one
+type per shape) fixed on one carriage, given in the nozzle frame (origin = the point the
+machine positions and the axis the rotary joint turns about; see
+:mod:`printability.geometry`).
 
-SPEC syntax (docs/design.md §4), parsed by :func:`parse_nozzle` from the kinds in
-:data:`printability.options.NOZZLE_KINDS`::
+SPEC syntax (docs/design.md §4), parsed by :func:`parse_nozzle` from the shapes in
+:data:`printability.shapes.SHAPES` (named in :data:`printability.options.NOZZLE_KINDS`)::
 
     circle:d=0.4                  round, diameter 0.4 mm (or r=0.2)
     ellipse:major=0.8,minor=0.3   full axis lengths; major along the nozzle x axis
@@ -24,102 +25,20 @@ orifices on one head are joined with ``+``:
 from __future__ import annotations
 
 import math
-import re
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import shapely
 import shapely.affinity
-from shapely.geometry import MultiPolygon, Polygon
+from shapely.geometry import MultiPolygon
 from shapely.geometry.base import BaseGeometry
 
-from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
-from printability.geometry import polygons_of, rotation_matrix
+from printability.errors import InputError, excerpt
 from printability.options import NOZZLE_KINDS
+from printability.shapes import COMMON_PARAMETERS, NOZZLE_SIZE_RANGE, SHAPES, Footprint, number
 
-__all__ = ["Footprint", "Nozzle", "parse_nozzle"]
-
-_OUTLINE_MODES = ("inner", "outer")
-
-
-@dataclass(frozen=True)
-class Footprint:
-    """One orifice in the nozzle frame.
-
-    Attributes
-    ----------
-    kind
-        One of :data:`printability.options.NOZZLE_KINDS`.
-    a, b
-        Semi-axes (mm): circle a = b = r; ellipse a = semi-major along the
-        orifice's x axis, b = semi-minor; rectangle a = w/2, b = h/2.
-        Unused (0) for polygons.
-    center
-        Position of the orifice centre in the nozzle frame, mm.
-    rotation
-        Orientation of the orifice in the nozzle frame, degrees.
-    vertices
-        Polygon shell vertices in the nozzle frame (polygons only; centre and
-        rotation already applied), as a tuple of (x, y).
-    """
-
-    kind: str
-    a: float = 0.0
-    b: float = 0.0
-    center: tuple[float, float] = (0.0, 0.0)
-    rotation: float = 0.0
-    vertices: tuple[tuple[float, float], ...] = ()
-
-    @property
-    def area(self) -> float:
-        """Exact area, mm²."""
-        if self.kind in ("circle", "ellipse"):
-            return math.pi * self.a * self.b
-        if self.kind == "rect":
-            return 4.0 * self.a * self.b
-        return Polygon(self.vertices).area
-
-    @property
-    def radius(self) -> float:
-        """Largest distance from the nozzle origin to a point of the orifice, mm."""
-        cx, cy = self.center
-        if self.kind in ("circle", "ellipse"):
-            return math.hypot(cx, cy) + self.a
-        return float(np.max(np.hypot(*self._polygon_coords(0).T)))
-
-    def _polygon_coords(self, n_quarter: int) -> np.ndarray:
-        """Vertices (k, 2) in the nozzle frame; ellipses inscribed with 4·n_quarter points."""
-        if self.kind == "polygon":
-            return np.asarray(self.vertices, dtype=float)
-        if self.kind == "rect":
-            local = np.array([[self.a, self.b], [-self.a, self.b],
-                              [-self.a, -self.b], [self.a, -self.b]])
-        else:
-            n = max(4 * n_quarter, 8)
-            t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
-            local = np.column_stack([self.a * np.cos(t), self.b * np.sin(t)])
-        return local @ rotation_matrix(self.rotation).T + np.asarray(self.center)
-
-    def polygon(self, *, quad_segs: int = 32, mode: str = "inner") -> Polygon:
-        """Polygonal approximation in the nozzle frame.
-
-        ``mode="inner"``: vertices on the curve (contained in the true
-        orifice); ``mode="outer"``: the same polygon scaled about the centre
-        by 1/cos(π/n) so it contains the true ellipse (n vertices). Both are
-        exact for rectangles and polygons. The Hausdorff error of either is at
-        most a·(1/cos(π/n) − 1) ≈ a·π²/(2n²).
-        """
-        if mode not in _OUTLINE_MODES:
-            raise InputError(f"unknown outline mode {mode!r}; expected one of: inner, outer")
-        coords = self._polygon_coords(quad_segs)
-        if mode == "outer" and self.kind in ("circle", "ellipse"):
-            n = len(coords)
-            c = np.asarray(self.center)
-            coords = c + (coords - c) / math.cos(math.pi / n)
-        return Polygon(coords)
+__all__ = ["NOZZLE_SIZE_RANGE", "Footprint", "Nozzle", "parse_nozzle"]
 
 
 @dataclass(frozen=True)
@@ -157,7 +76,7 @@ class Nozzle:
     def is_round(self) -> bool:
         """True for one circular orifice centred on the rotation axis."""
         f = self.footprints[0]
-        return len(self.footprints) == 1 and f.kind == "circle" and f.center == (0.0, 0.0)
+        return len(self.footprints) == 1 and f.disk is not None and f.center == (0.0, 0.0)
 
     @property
     def symmetry_period(self) -> float:
@@ -168,11 +87,7 @@ class Nozzle:
         if self.is_round:
             return 0.0
         if len(self.footprints) == 1 and self.footprints[0].center == (0.0, 0.0):
-            f = self.footprints[0]
-            if f.kind == "rect" and math.isclose(f.a, f.b):
-                return 90.0
-            if f.kind in ("ellipse", "rect", "circle"):
-                return 180.0
+            return self.footprints[0].symmetry
         return 360.0
 
     @property
@@ -209,23 +124,8 @@ class Nozzle:
         nx, ny = -math.sin(theta), math.cos(theta)
         lo, hi = math.inf, -math.inf
         for f in self.footprints:
-            phi = math.radians(self.mount_angle + angle + f.rotation)
-            c, s = math.cos(phi), math.sin(phi)
-            cx = c * f.center[0] - s * f.center[1]
-            cy = s * f.center[0] + c * f.center[1]
-            mid = cx * nx + cy * ny
-            # the normal expressed in the orifice's own frame
-            ux, uy = c * nx + s * ny, -s * nx + c * ny
-            if f.kind in ("circle", "ellipse"):
-                half = math.hypot(f.a * ux, f.b * uy)
-            elif f.kind == "rect":
-                half = abs(f.a * ux) + abs(f.b * uy)
-            else:
-                pts = np.asarray(f.vertices) @ rotation_matrix(self.mount_angle + angle).T
-                proj = pts @ np.array([nx, ny])
-                lo, hi = min(lo, proj.min()), max(hi, proj.max())
-                continue
-            lo, hi = min(lo, mid - half), max(hi, mid + half)
+            f_lo, f_hi = f.span(nx, ny, self.mount_angle + angle)
+            lo, hi = min(lo, f_lo), max(hi, f_hi)
         return float(hi - lo)
 
     def bead_widths(self, direction: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -242,145 +142,27 @@ class Nozzle:
         lo = np.full(theta.shape, np.inf)
         hi = np.full(theta.shape, -np.inf)
         for f in self.footprints:
-            if f.kind in ("circle", "ellipse", "rect"):
-                phi = np.radians(self.mount_angle + ang + f.rotation)
-                c, s = np.cos(phi), np.sin(phi)
-                mid = (c * f.center[0] - s * f.center[1]) * nx \
-                    + (s * f.center[0] + c * f.center[1]) * ny
-                ux, uy = c * nx + s * ny, -s * nx + c * ny
-                if f.kind == "rect":
-                    half = np.abs(f.a * ux) + np.abs(f.b * uy)
-                else:
-                    half = np.hypot(f.a * ux, f.b * uy)
-                lo = np.minimum(lo, mid - half)
-                hi = np.maximum(hi, mid + half)
-                continue
-            # polygon: project the turned vertices on the normal
-            pts = np.asarray(f.vertices, dtype=float)
-            phi = np.radians(self.mount_angle + ang)
-            c, s = np.cos(phi), np.sin(phi)
-            px = c[..., None] * pts[:, 0] - s[..., None] * pts[:, 1]
-            py = s[..., None] * pts[:, 0] + c[..., None] * pts[:, 1]
-            proj = px * nx[..., None] + py * ny[..., None]
-            lo = np.minimum(lo, proj.min(axis=-1))
-            hi = np.maximum(hi, proj.max(axis=-1))
+            f_lo, f_hi = f.spans(nx, ny, self.mount_angle + ang)
+            lo = np.minimum(lo, f_lo)
+            hi = np.maximum(hi, f_hi)
         return hi - lo
+
+    def convex_pieces(self) -> tuple[Footprint, ...]:
+        """Convex orifices in the nozzle frame, mounting angle applied, whose union is the
+        nozzle's footprint exactly (one per circle, ellipse, rectangle or convex polygon; a
+        non-convex polygon's triangles)."""
+        m = self.mount_angle
+        return tuple(piece for f in self.footprints for piece in f.turned(m).convex_pieces())
 
 
 # --------------------------------------------------------------------------- parsing
 
-_NUMBER = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
-_COMMON = {"x", "y", "rot", "angle"}
-_ALLOWED = {
-    "circle": {"d", "r"} | _COMMON,
-    "ellipse": {"major", "minor"} | _COMMON,
-    "rect": {"w", "h"} | _COMMON,
-    "polygon": {"file", "pts", "scale", "origin"} | _COMMON,
-}
-
-
-def _number(spec: str, key: str, text: str) -> float:
-    if not _NUMBER.match(text.strip()):
-        raise InputError(f"nozzle spec {excerpt(spec)}: {key}= expects a number; "
-                         f"found {excerpt(text)}")
-    value = float(text)
-    if not math.isfinite(value):
-        raise InputError(f"nozzle spec {excerpt(spec)}: {key}= must be finite; "
-                         f"found {excerpt(text)}")
-    if key in ("angle", "rot") and abs(value) > 3600:
-        raise InputError(f"nozzle spec {excerpt(spec)}: {key}= expects an angle within ±3600 "
-                         f"degrees; found {excerpt(text)}")
-    if key in ("x", "y") and abs(value) > NOZZLE_SIZE_RANGE[1]:
-        raise InputError(f"nozzle spec {excerpt(spec)}: {key}= expects an offset within "
-                         f"±{NOZZLE_SIZE_RANGE[1]:g} mm; found {excerpt(text)}")
-    return value
-
-
-#: Orifice sizes a nozzle may have, mm: a micrometre to a metre (below, the analysis's
-#: grids and footprints overflow; above, no printer).
-NOZZLE_SIZE_RANGE = (1e-3, 1e3)
-
-
-def _positive(spec: str, key: str, value: float) -> float:
-    lo, hi = NOZZLE_SIZE_RANGE
-    if value <= 0:
-        raise InputError(
-            f"nozzle spec {excerpt(spec)}: {key} must be a positive length in mm; found {value:g}"
-        )
-    if not (lo <= value <= hi) and key != "scale":
-        raise InputError(f"nozzle spec {excerpt(spec)}: {key} must be between {lo:g} and "
-                         f"{hi:g} mm; found {value:g}")
-    return value
-
-
-#: Largest nozzle outline file read (.wkt, .txt): an orifice has tens of vertices, not millions.
-MAX_POLYGON_FILE = 16 << 20
-
-
-def _read_polygon_file(path: Path) -> Polygon:
-    """Read a polygon outline: .wkt, .txt/.csv/.xy ("x y" per line), or .svg."""
-    from printability.sources._common import MAX_COORDINATE, check_coordinates
-
-    if not path.exists():
-        raise PrintabilityOSError(f"{path}: nozzle polygon file not found")
-    if not path.is_file():
-        raise PrintabilityOSError(f"{path}: not a regular file (expected a nozzle outline: "
-                                  ".svg, .wkt or 'x y' lines)")
-    suffix = path.suffix.lower()
-    if suffix != ".svg" and path.stat().st_size > MAX_POLYGON_FILE:
-        raise FileFormatError(path, f"{path.stat().st_size / 2**20:.0f} MiB; a nozzle outline "
-                              f"file is expected to be at most {MAX_POLYGON_FILE >> 20} MiB")
-    if suffix == ".svg":
-        # The SVG reader lives with the other layer sources.
-        from printability.sources.svg import load_svg_region
-
-        geom = load_svg_region(path)
-    else:
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise PrintabilityOSError(f"{path}: cannot read nozzle polygon file ({exc})") from None
-        if suffix == ".wkt":
-            try:
-                with warnings.catch_warnings():  # GEOS warns of "nan": checked below
-                    warnings.simplefilter("ignore", RuntimeWarning)
-                    geom = shapely.from_wkt(text.strip())
-            except shapely.errors.GEOSException as exc:
-                raise FileFormatError(
-                    path, f"expected a WKT polygon ({excerpt(str(exc), 120)})") from None
-            check_coordinates(path, shapely.get_coordinates(geom))
-        else:
-            pts = []
-            for no, line in enumerate(text.splitlines(), 1):
-                line = line.split("#", 1)[0].strip()
-                if not line:
-                    continue
-                fields = line.replace(",", " ").split()
-                if len(fields) != 2 or not all(_NUMBER.match(f) for f in fields):
-                    raise FileFormatError(
-                        path, f"expected two numbers 'x y'; found {excerpt(line)}", line=no)
-                x, y = float(fields[0]), float(fields[1])
-                if not (abs(x) <= MAX_COORDINATE and abs(y) <= MAX_COORDINATE):
-                    raise FileFormatError(
-                        path, f"expected finite numbers up to {MAX_COORDINATE:g}; found "
-                        f"{excerpt(line)}", line=no)
-                pts.append((x, y))
-            if len(pts) < 3:
-                raise FileFormatError(path, f"expected at least 3 vertices; found {len(pts)}")
-            geom = Polygon(pts)
-    polys = polygons_of(shapely.make_valid(geom))
-    if not polys:
-        raise FileFormatError(path, "no closed shape with positive area")
-    if len(polys) > 1:
-        polys.sort(key=lambda p: -p.area)
-    return polys[0]
-
-
 def _parse_part(part: str, spec: str, base_dir: Path | None) -> tuple[Footprint, float | None]:
     kind, _, rest = part.partition(":")
-    kind = NOZZLE_KINDS.check(kind)
+    shape = SHAPES[NOZZLE_KINDS.check(kind)]
+    allowed = shape.parameters | COMMON_PARAMETERS
     params: dict[str, str] = {}
-    if kind == "polygon" and rest and "=" not in rest.split(",", 1)[0]:
+    if "file" in shape.parameters and rest and "=" not in rest.split(",", 1)[0]:
         first, _, rest = rest.partition(",")
         params["file"] = first
     for item in filter(None, (s.strip() for s in rest.split(","))):
@@ -389,96 +171,17 @@ def _parse_part(part: str, spec: str, base_dir: Path | None) -> tuple[Footprint,
         if not eq:
             raise InputError(f"nozzle spec {excerpt(spec)}: expected key=value; "
                              f"found {excerpt(item)}")
-        if key not in _ALLOWED[kind]:
+        if key not in allowed:
             raise InputError(
-                f"nozzle spec {excerpt(spec)}: unknown parameter {excerpt(key)} for a {kind}; "
-                f"expected one of: {', '.join(sorted(_ALLOWED[kind]))}"
+                f"nozzle spec {excerpt(spec)}: unknown parameter {excerpt(key)} for a "
+                f"{shape.kind}; expected one of: {', '.join(sorted(allowed))}"
             )
         if key in params:
             raise InputError(f"nozzle spec {excerpt(spec)}: parameter {excerpt(key)} given twice")
         params[key] = value.strip()
-
-    num = {k: _number(spec, k, v) for k, v in params.items()
+    num = {k: number(spec, k, v) for k, v in params.items()
            if k not in ("file", "pts", "origin")}
-    center = (num.get("x", 0.0), num.get("y", 0.0))
-    rot = num.get("rot", 0.0)
-    angle = num.get("angle")
-
-    if kind == "circle":
-        if ("d" in num) == ("r" in num):
-            raise InputError(f"nozzle spec {excerpt(spec)}: a circle needs exactly one of d= or r=")
-        r = num["d"] / 2 if "d" in num else num["r"]
-        _positive(spec, "the diameter", 2 * r)
-        return Footprint("circle", r, r, center, 0.0), angle
-    if kind == "ellipse":
-        for k in ("major", "minor"):
-            if k not in num:
-                raise InputError(f"nozzle spec {excerpt(spec)}: an ellipse needs {k}= "
-                                 "(full axis, mm)")
-            _positive(spec, k, num[k])
-        if num["minor"] > num["major"]:
-            raise InputError(
-                f"nozzle spec {excerpt(spec)}: minor ({num['minor']:g}) is larger than major "
-                f"({num['major']:g}); swap them or use rot=90"
-            )
-        return Footprint("ellipse", num["major"] / 2, num["minor"] / 2, center, rot), angle
-    if kind == "rect":
-        for k in ("w", "h"):
-            if k not in num:
-                raise InputError(f"nozzle spec {excerpt(spec)}: a rectangle needs {k}= (mm)")
-            _positive(spec, k, num[k])
-        return Footprint("rect", num["w"] / 2, num["h"] / 2, center, rot), angle
-
-    # polygon
-    if ("file" in params) == ("pts" in params):
-        raise InputError(f"nozzle spec {excerpt(spec)}: a polygon needs a FILE or pts=x y;x y;...")
-    if "file" in params:
-        path = Path(params["file"]).expanduser()
-        if not path.is_absolute() and base_dir is not None:
-            path = base_dir / path
-        poly = _read_polygon_file(path)
-    else:
-        from printability.sources._common import MAX_COORDINATE
-
-        pts = []
-        for vertex in params["pts"].split(";"):
-            fields = vertex.split()
-            if len(fields) != 2:
-                raise InputError(f"nozzle spec {excerpt(spec)}: pts= expects 'x y' pairs "
-                                 f"separated by ';'; found {excerpt(vertex)}")
-            pts.append((_number(spec, "pts", fields[0]), _number(spec, "pts", fields[1])))
-            if not all(abs(v) <= MAX_COORDINATE for v in pts[-1]):
-                raise InputError(f"nozzle spec {excerpt(spec)}: pts= expects finite numbers up "
-                                 f"to {MAX_COORDINATE:g}; found {excerpt(vertex)}")
-        if len(pts) < 3:
-            raise InputError(f"nozzle spec {excerpt(spec)}: a polygon needs at least 3 vertices")
-        polys = polygons_of(shapely.make_valid(Polygon(pts)))
-        if not polys:
-            raise InputError(f"nozzle spec {excerpt(spec)}: the polygon has no area")
-        poly = max(polys, key=lambda p: p.area)
-    origin = params.get("origin", "file").lower()
-    if origin not in ("file", "centroid"):
-        raise InputError(f"nozzle spec {excerpt(spec)}: origin= expects 'file' or 'centroid'; "
-                         f"found {excerpt(origin)}")
-    if origin == "centroid":
-        c = poly.centroid
-        poly = shapely.affinity.translate(poly, -c.x, -c.y)
-    if "scale" in num:
-        _positive(spec, "scale", num["scale"])
-        poly = shapely.affinity.scale(poly, num["scale"], num["scale"], origin=(0, 0))
-    poly = shapely.affinity.rotate(poly, rot, origin=(0, 0))
-    poly = shapely.affinity.translate(poly, *center)
-    if poly.interiors:
-        poly = Polygon(poly.exterior)  # an orifice with a hole is treated as its outline
-    if poly.area <= 0:
-        raise InputError(f"nozzle spec {excerpt(spec)}: the polygon has zero area")
-    reach = max(map(abs, poly.bounds))
-    if not reach <= NOZZLE_SIZE_RANGE[1]:
-        raise InputError(f"nozzle spec {excerpt(spec)}: the polygon reaches {reach:g} mm from "
-                         f"the rotation axis; expected within ±{NOZZLE_SIZE_RANGE[1]:g} mm "
-                         "(scale= converts other units)")
-    shell = shapely.geometry.polygon.orient(poly, 1.0).exterior.coords[:-1]
-    return Footprint("polygon", 0.0, 0.0, (0.0, 0.0), 0.0, tuple(map(tuple, shell))), angle
+    return shape.from_spec(spec, num, params, base_dir=base_dir), num.get("angle")
 
 
 def parse_nozzle(spec: str | Nozzle, *, base_dir: str | Path | None = None) -> Nozzle:

@@ -66,7 +66,7 @@ def test_the_forbidden_lists_name_every_printability_module_but_base():
 
 MODEL = {"printability.geometry", "printability.layers", "printability.machine",
          "printability.nozzle", "printability.errors", "printability.options",
-         "printability.settings", "printability.sources"}
+         "printability.settings", "printability.shapes", "printability.sources"}
 APPLICATIONS = {"printability.__main__", "printability.cli", "printability.demo"}
 
 

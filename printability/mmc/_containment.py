@@ -21,19 +21,19 @@ from shapely.geometry.base import BaseGeometry
 from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.geometry import polygons_of
 from printability.mmc.orifices import Orifice, offset_orifice
+from printability.shapes import BOX, CONIC, POLYGON
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
 __all__ = ["ContainmentTest", "Edges", "boundary_edges", "containment_test",
            "run_containment_test"]
 
-_CIRCLE, _RECT, _POLY = 0, 1, 2
 
 
 @numba.njit(cache=True)
 def _segment_meets(kind, a, b, x0, y0, x1, y1, vx, vy, closed):  # pragma: no cover
     """Does the segment (local frame) meet the shape? ``closed``: touching counts."""
-    if kind == _CIRCLE:  # ellipse of semi-axes a, b (circle: a == b)
+    if kind == CONIC:  # ellipse of semi-axes a, b (circle: a == b)
         x0, y0, x1, y1 = x0 / a, y0 / b, x1 / a, y1 / b
         dx, dy = x1 - x0, y1 - y0
         ll = dx * dx + dy * dy
@@ -44,7 +44,7 @@ def _segment_meets(kind, a, b, x0, y0, x1, y1, vx, vy, closed):  # pragma: no co
         d2 = px * px + py * py
         # closed: a hair of margin so that tangency lost to rounding still counts
         return d2 <= 1.0 + 1e-9 if closed else d2 < 1.0
-    if kind == _RECT:
+    if kind == BOX:
         if closed:  # a hair of margin so that tangency lost to rounding still counts
             a *= 1.0 + 1e-9
             b *= 1.0 + 1e-9
@@ -221,16 +221,10 @@ class ContainmentTest:
 
 def containment_test(o: Orifice, shrink: float, *, closed: bool) -> ContainmentTest:
     """The exact test of orifice ``o``, shrunk by ``shrink`` mm (inside the true erosion)."""
-    if o.kind in ("circle", "ellipse", "rect"):
-        a, b = o.semi_axes
-        if o.kind == "rect":
-            a, b = a - shrink, b - shrink  # exact erosion of a rectangle
-        else:
-            # E(ka, kb) with k = 1 − shrink/b lies inside the ellipse eroded by ``shrink``
-            k = 1.0 - shrink / b
-            a, b = a * k, b * k
-        kind = _RECT if o.kind == "rect" else _CIRCLE
-        return ContainmentTest(o.center, o.frame_angle, kind, a, b,
+    axes = o.shape.eroded(shrink)
+    if axes is not None:
+        a, b = axes
+        return ContainmentTest(o.center, o.frame_angle, o.shape.code, a, b,
                                math.hypot(a, b) * 1.000001, np.zeros(0), closed,
                                empty=min(a, b) <= 0)
     poly = offset_orifice(o, "outer" if closed else "inner", -shrink) if shrink else (
@@ -241,12 +235,13 @@ def containment_test(o: Orifice, shrink: float, *, closed: bool) -> ContainmentT
             c = np.asarray(ring.coords)
             ends.append(np.column_stack([c[:-1], c[1:]]).reshape(-1, 2))
     if not ends:
-        return ContainmentTest(o.center, 0.0, _POLY, 0.0, 0.0, 0.0, np.zeros(0), closed, empty=True)
+        return ContainmentTest(o.center, 0.0, POLYGON, 0.0, 0.0, 0.0, np.zeros(0), closed,
+                               empty=True)
     pts = np.concatenate(ends)
     edges = np.concatenate([pts[:, 0], pts[:, 1]])
     reach = float(np.hypot(pts[:, 0], pts[:, 1]).max()) * 1.000001
     # polygons are tested in the nozzle frame itself: centre (0, 0), no extra turn
-    return ContainmentTest((0.0, 0.0), 0.0, _POLY, 0.0, 0.0, reach, edges, closed)
+    return ContainmentTest((0.0, 0.0), 0.0, POLYGON, 0.0, 0.0, reach, edges, closed)
 
 
 def run_containment_test(test: ContainmentTest, inside_pt: tuple[float, float], g: BaseGeometry,

@@ -46,16 +46,15 @@ from printability.mmc._offset_bands import (
     boundary_segments,
     union_in_order,
 )
+from printability.shapes import convex_decomposition
 
 __all__ = ["convex_pieces", "largest_polygon", "minkowski_dilate", "minkowski_erode"]
 
 
 def convex_pieces(k: Polygon) -> list[Polygon]:
-    """K as a union of convex polygons (itself, or a constrained Delaunay triangulation)."""
-    k = shapely.normalize(k)
-    if k.convex_hull.area - k.area <= 1e-12 * max(k.area, 1e-300):
-        return [Polygon(k.exterior)]
-    return polygons_of(shapely.constrained_delaunay_triangles(k))
+    """K as a union of convex polygons (itself, or a constrained Delaunay triangulation),
+    normalized first so that the pieces do not depend on K's vertex order."""
+    return list(convex_decomposition(shapely.normalize(k)))
 
 
 def _boundary_minkowski(geom: BaseGeometry, pieces: Sequence[Polygon], sign: float) -> BaseGeometry:

@@ -115,24 +115,24 @@ __all__ = [
 class _Placed:
     """One orifice at one sampled angle, in the machine frame at the origin."""
 
-    kind: str  # "disk" (circle / ellipse: c + L·D) or "poly"
+    conic: bool  # c + L·D (circle, ellipse) rather than ``poly``
     c: tuple[float, float] = (0.0, 0.0)
     lmat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 1.0)  # row-major L
-    b: float = 0.0  # semi-minor axis (disk kind), mm
+    b: float = 0.0  # semi-minor axis (conic), mm
     poly: Polygon | None = None
 
 
 def _place(f: Footprint, total_angle: float) -> _Placed:
     rot = rotation_matrix(total_angle)
-    if f.kind in ("circle", "ellipse"):
+    if f.conic:
         c = rot @ np.asarray(f.center, float)
         lm = rotation_matrix(total_angle + f.rotation) @ np.diag([f.a, f.b])
-        return _Placed("disk", (float(c[0]), float(c[1])), tuple(float(x) for x in lm.ravel()),
+        return _Placed(True, (float(c[0]), float(c[1])), tuple(float(x) for x in lm.ravel()),
                        b=min(f.a, f.b))
     poly = f.polygon(mode="inner")
     if total_angle % 360.0:
         poly = shapely.affinity.rotate(poly, total_angle, origin=(0.0, 0.0))
-    return _Placed("poly", poly=poly)
+    return _Placed(False, poly=poly)
 
 
 def _affine(m: np.ndarray, shift: np.ndarray | tuple[float, float] = (0.0, 0.0)) -> list[float]:
@@ -177,7 +177,7 @@ def _one_angle(
     grown: list[tuple[_Placed, float, list[Polygon] | None]] = []
     whole_g = False
     for o in placed:
-        if o.kind == "disk":
+        if o.conic:
             pi = _p_disk(g, o, 1.0, quad_segs, outer=False)
             s_minus = 1.0 - delta / o.b
             if s_minus <= 0:
@@ -213,7 +213,7 @@ def _one_angle(
     s_in_parts = []
     s_out_parts = []
     for o, s_plus, pieces_plus in grown:
-        if o.kind == "disk":
+        if o.conic:
             s_in_parts.append(_s_disk(p_in, o, 1.0, quad_segs, outer=False))
             if not whole_g and p_out is not None:
                 s_out_parts.append(_s_disk(p_out, o, s_plus, quad_segs, outer=True))
@@ -239,7 +239,7 @@ _DEEP = 2.5
 
 def _reach(o: _Placed) -> float:
     """Largest distance from the nozzle origin to a point of the placed orifice, mm."""
-    if o.kind == "disk":
+    if o.conic:
         # ‖L‖₂: the semi-major axis, whichever of a and b it is
         return math.hypot(*o.c) + float(np.linalg.norm(np.asarray(o.lmat).reshape(2, 2), 2))
     return float(np.max(np.hypot(*shapely.get_coordinates(o.poly).T)))
@@ -422,7 +422,7 @@ def mmc_exact(
 
     pieces = [polygons_of(r.p_inner) for r in results]
     components = _components(pieces, angles, wrap)
-    curved = [f.a for f in nozzle.footprints if f.kind in ("circle", "ellipse")]
+    curved = [f.a for f in nozzle.footprints if f.conic]
     kappa = chord_factor(q)
     notes = []
     if curved:

@@ -19,9 +19,10 @@ import shapely.affinity
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
-from printability.geometry import polygons_of, rotation_matrix
+from printability.geometry import rotation_matrix
 from printability.machine import Machine
 from printability.nozzle import Nozzle
+from printability.shapes import Footprint, convex_decomposition
 
 __all__ = [
     "Orifice",
@@ -58,9 +59,9 @@ class Orifice:
         ``(cx, cy, r)`` when the orifice is an exact circle (tests are then exact).
     diameter
         Largest distance between two points of ``outer``, mm.
-    kind, semi_axes, frame_angle
-        The exact shape: kind of :class:`~printability.nozzle.Footprint`; semi-axes
-        (a, b) of a circle/ellipse/rectangle centred on ``center`` and turned by
+    shape, frame_angle
+        The exact shape (:class:`~printability.shapes.Footprint`): its semi-axes (a, b)
+        describe a circle/ellipse/rectangle centred on ``center`` and turned by
         ``frame_angle`` degrees in the nozzle frame (unused for polygons).
     """
 
@@ -73,16 +74,13 @@ class Orifice:
     circumradius: float
     disk: tuple[float, float, float] | None
     diameter: float
-    kind: str = "polygon"
-    semi_axes: tuple[float, float] = (0.0, 0.0)
+    shape: Footprint
     frame_angle: float = 0.0
 
-
-def _convex_pieces(poly: Polygon) -> tuple[Polygon, ...]:
-    hull = poly.convex_hull
-    if poly.area >= hull.area * (1.0 - 1e-12):
-        return (poly,)
-    return tuple(polygons_of(shapely.constrained_delaunay_triangles(poly)))
+    @property
+    def semi_axes(self) -> tuple[float, float]:
+        """(a, b) of the exact shape, mm (0 for polygons)."""
+        return (self.shape.a, self.shape.b)
 
 
 def orifices_of(nozzle: Nozzle, *, quad_segs: int) -> tuple[Orifice, ...]:
@@ -105,27 +103,20 @@ def orifices_of(nozzle: Nozzle, *, quad_segs: int) -> tuple[Orifice, ...]:
             inner = shapely.affinity.rotate(inner, mount, origin=(0.0, 0.0))
             outer = shapely.affinity.rotate(outer, mount, origin=(0.0, 0.0))
         n = len(inner.exterior.coords) - 1
-        disk = None
-        if f.kind in ("circle", "ellipse", "rect"):
+        r_in = f.inradius(n)
+        if r_in is not None:
             c = tuple(float(v) for v in rot @ np.asarray(f.center))
-            if f.kind == "rect":
-                r_in = min(f.a, f.b)
-            else:
-                # the inscribed n-gon is the affine image of a regular n-gon, which holds
-                # the disk of radius cos(π/n)
-                r_in = min(f.a, f.b) * math.cos(math.pi / n)
-            if f.kind == "circle":
-                disk = (c[0], c[1], f.a)
         else:
             line = shapely.maximum_inscribed_circle(inner)
             (x0, y0), _ = line.coords
             c, r_in = (float(x0), float(y0)), float(line.length)
+        disk = None if f.disk is None else (c[0], c[1], f.disk)
         pts = np.asarray(outer.exterior.coords)
         circum = float(np.max(np.hypot(pts[:, 0] - c[0], pts[:, 1] - c[1])))
         diff = pts[:, None, :] - pts[None, :, :]
         diameter = float(np.sqrt((diff**2).sum(-1).max()))
-        out.append(Orifice(inner, outer, _convex_pieces(inner), _convex_pieces(outer),
-                           c, r_in, circum, disk, diameter, f.kind, (f.a, f.b),
+        out.append(Orifice(inner, outer, convex_decomposition(inner),
+                           convex_decomposition(outer), c, r_in, circum, disk, diameter, f,
                            mount + f.rotation))
     return tuple(out)
 

@@ -297,7 +297,7 @@ BAND_LEVELS = 6
 
 def _band_settles(nozzle: Nozzle) -> bool:
     """Whether :mod:`printability.mmc._band` applies: one circle or ellipse orifice."""
-    return len(nozzle.footprints) == 1 and nozzle.footprints[0].kind in ("circle", "ellipse")
+    return len(nozzle.footprints) == 1 and nozzle.footprints[0].conic
 
 
 def _settle_band(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, s_inner: np.ndarray,

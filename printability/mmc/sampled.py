@@ -136,7 +136,7 @@ def _draw_quad_segs(orifices: tuple[Orifice, ...], tolerance: float, most: int) 
     inner polygon of a curve of largest semi-axis a with n vertices is within
     a·(1 − cos(π/n)) of it, the outer within a·(1/cos(π/n) − 1).
     """
-    a = max([max(o.semi_axes) for o in orifices if o.kind in ("circle", "ellipse")] or [0.0])
+    a = max([max(o.semi_axes) for o in orifices if o.shape.conic] or [0.0])
     if a <= 0:
         return most
     x = math.acos(1.0 / (1.0 + min(tolerance / a, 0.5)))

@@ -3,7 +3,8 @@
 A move from p₀ to p₁ at the constant orientation φ deposits inside the swept
 footprint ``[p₀, p₁] ⊕ R(φ)A⁰``. For a convex orifice that is the convex hull
 of the footprint placed at both ends; a non-convex polygon is split into
-triangles (:class:`ConvexPiece`) and each is swept. Footprints are tested with
+triangles (:meth:`~printability.nozzle.Nozzle.convex_pieces`) and each is swept.
+Footprints are tested with
 their *outer* polygonal approximation (half-planes in 64 directions, one of them
 the move's normal), so curved orifices are never under-estimated. The planner
 (:mod:`printability.motion.orientation`) asks :func:`fits` and :func:`_first_fit`
@@ -19,7 +20,6 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import shapely
@@ -27,7 +27,6 @@ from shapely.geometry.base import BaseGeometry
 
 from printability._parallel import shared_out
 from printability.errors import InputError
-from printability.geometry import polygons_of
 from printability.motion.fastfit import (
     EPS,
     _order,
@@ -40,45 +39,15 @@ from printability.motion.fastfit import (
 )
 from printability.motion.records import Angles, Directions, Groups, Moves, Pieces
 from printability.nozzle import Nozzle
+from printability.shapes import POLYGON, Footprint
 
-__all__ = ["ConvexPiece", "convex_pieces", "fits", "grown_target", "swept_footprints",
+__all__ = ["convex_pieces", "fits", "grown_target", "swept_footprints",
            "swept_rings"]
 
 
-@dataclass(frozen=True)
-class ConvexPiece:
-    """A convex part of an orifice in the nozzle frame (mounting angle included).
-
-    ``kind`` is ``"ellipse"`` (circles too), ``"rect"`` or ``"poly"``; ``a``,
-    ``b`` semi-axes (mm), ``center`` (mm) and ``rotation`` (degrees) place
-    the first two; ``vertices`` (k, 2) the last.
-    """
-
-    kind: str
-    a: float = 0.0
-    b: float = 0.0
-    center: tuple[float, float] = (0.0, 0.0)
-    rotation: float = 0.0
-    vertices: np.ndarray | None = None
-
-    def support(self, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
-        """Support function h(u) = max over the piece of u·x, for unit vectors (ux, uy)."""
-        cx, cy = self.center
-        base = ux * cx + uy * cy
-        if self.kind in ("ellipse", "rect"):
-            r = math.radians(self.rotation)
-            c, s = math.cos(r), math.sin(r)
-            vx = c * ux + s * uy  # u in the orifice's own axes
-            vy = -s * ux + c * uy
-            if self.kind == "ellipse":
-                return base + np.sqrt((self.a * vx) ** 2 + (self.b * vy) ** 2)
-            return base + self.a * np.abs(vx) + self.b * np.abs(vy)
-        v = self.vertices
-        return np.max(ux[..., None] * v[:, 0] + uy[..., None] * v[:, 1], axis=-1)
-
-
-def convex_pieces(nozzle: Nozzle, *, quad_segs: int = 16) -> list[ConvexPiece]:
-    """Convex pieces covering the orifices of a nozzle, exactly.
+def convex_pieces(nozzle: Nozzle, *, quad_segs: int = 16) -> list[Footprint]:
+    """Convex pieces covering the orifices of a nozzle, exactly
+    (:meth:`~printability.nozzle.Nozzle.convex_pieces`).
 
     Circles, ellipses and rectangles are one piece each (their support
     function is exact); a convex polygon is one piece; a non-convex polygon
@@ -86,31 +55,10 @@ def convex_pieces(nozzle: Nozzle, *, quad_segs: int = 16) -> list[ConvexPiece]:
     symmetry with the outline functions).
     """
     del quad_segs
-    out: list[ConvexPiece] = []
-    m = nozzle.mount_angle
-    rm = math.radians(m)
-    cm, sm = math.cos(rm), math.sin(rm)
-    for f in nozzle.footprints:
-        cx, cy = f.center
-        center = (cm * cx - sm * cy, sm * cx + cm * cy)
-        if f.kind in ("circle", "ellipse"):
-            out.append(ConvexPiece("ellipse", f.a, f.b, center, f.rotation + m))
-            continue
-        if f.kind == "rect":
-            out.append(ConvexPiece("rect", f.a, f.b, center, f.rotation + m))
-            continue
-        poly = f.polygon()
-        if m:
-            poly = shapely.affinity.rotate(poly, m, origin=(0.0, 0.0))
-        if poly.convex_hull.area - poly.area <= 1e-12 * max(poly.area, 1.0):
-            out.append(ConvexPiece("poly", vertices=np.asarray(poly.exterior.coords)[:-1]))
-            continue
-        for tri in polygons_of(shapely.constrained_delaunay_triangles(poly)):
-            out.append(ConvexPiece("poly", vertices=np.asarray(tri.exterior.coords)[:-1]))
-    return out
+    return list(nozzle.convex_pieces())
 
 
-def swept_footprints(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.ndarray,
+def swept_footprints(piece: Footprint, p0: np.ndarray, p1: np.ndarray, angle: np.ndarray,
                      *, angle_end: np.ndarray | None = None, scale: np.ndarray | None = None,
                      directions: int = 64) -> np.ndarray:
     """Outer polygons of a convex piece swept from p0 to p1.
@@ -133,7 +81,7 @@ def swept_footprints(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: 
                                         directions=directions))
 
 
-def swept_rings(piece: ConvexPiece, p0: np.ndarray, p1: np.ndarray, angle: np.ndarray,
+def swept_rings(piece: Footprint, p0: np.ndarray, p1: np.ndarray, angle: np.ndarray,
                 *, angle_end: np.ndarray | None = None, scale: np.ndarray | None = None,
                 directions: int = 64) -> np.ndarray:
     """The closed rings of :func:`swept_footprints` as coordinates, shape (n, directions + 1, 2)."""
@@ -146,10 +94,11 @@ _PARALLEL_MIN = 128
 """Fewest groups of candidates :func:`_first_fit` gives a thread of its own."""
 
 
-def _piece_params(piece: ConvexPiece) -> tuple[int, float, float, float, float, float, float]:
-    """Kind (0 ellipse, 1 rectangle), semi-axes, centre and rotation cos/sin of a piece."""
+def _piece_params(piece: Footprint) -> tuple[int, float, float, float, float, float, float]:
+    """Shape code (:data:`~printability.shapes.CONIC` or :data:`~printability.shapes.BOX`),
+    semi-axes, centre and rotation cos/sin of a piece."""
     r = math.radians(piece.rotation)
-    return (0 if piece.kind == "ellipse" else 1, float(piece.a), float(piece.b),
+    return (piece.code, float(piece.a), float(piece.b),
             float(piece.center[0]), float(piece.center[1]), math.cos(r), math.sin(r))
 
 
@@ -197,7 +146,7 @@ def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
     normal_c, normal_s = _move_normals(p0, p1)
     base = np.arange(directions) * (2 * math.pi / directions)
     det = math.sin(2 * math.pi / directions)
-    if kernel and piece.kind in ("ellipse", "rect"):
+    if kernel and piece.code != POLYGON:
         c0, s0, c1, s1, k = _angle_trig(angle, angle_end, n)
         sc = _EMPTY if scale is None else np.broadcast_to(np.asarray(scale, dtype=float),
                                                           (n,)).copy()
@@ -243,7 +192,7 @@ def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
     return ring, cu, su, h
 
 
-def fits(target: BaseGeometry, pieces: Sequence[ConvexPiece], p0: np.ndarray, p1: np.ndarray,
+def fits(target: BaseGeometry, pieces: Sequence[Footprint], p0: np.ndarray, p1: np.ndarray,
          angle: np.ndarray, *, angle_end: np.ndarray | None = None,
          scale: np.ndarray | None = None, fast: bool = True, workers: int = 1) -> np.ndarray:
     """Whether each move's swept footprint lies inside ``target`` (prepared, grown).
@@ -311,7 +260,7 @@ def _base_directions(directions: int) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 @functools.lru_cache(maxsize=32)
-def _pieces_arrays(pieces: tuple[ConvexPiece, ...]) -> Pieces:
+def _pieces_arrays(pieces: tuple[Footprint, ...]) -> Pieces:
     """:func:`_piece_params` of every piece, as the kernels' arrays."""
     params = [_piece_params(p) for p in pieces]
     out = Pieces(np.array([q[0] for q in params], dtype=np.int64),
@@ -321,9 +270,9 @@ def _pieces_arrays(pieces: tuple[ConvexPiece, ...]) -> Pieces:
     return out
 
 
-def _fused(pieces: Sequence[ConvexPiece]) -> bool:
-    """Whether :func:`first_fits` sweeps these pieces (ellipses and rectangles)."""
-    return all(p.kind in ("ellipse", "rect") for p in pieces)
+def _fused(pieces: Sequence[Footprint]) -> bool:
+    """Whether :func:`first_fits` sweeps these pieces (conics and rectangles)."""
+    return all(p.code != POLYGON for p in pieces)
 
 
 _DIRECTIONS = 64

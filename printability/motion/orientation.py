@@ -64,7 +64,6 @@ from printability.motion._passes import (
 from printability.motion._plan_kernels import chain_nearest, width_picks
 from printability.motion._search import _cost_order, _search_ordered, _split_many, _tried
 from printability.motion.footprints import (
-    ConvexPiece,
     convex_pieces,
     fits,
     swept_footprints,
@@ -75,7 +74,6 @@ from printability.motion.turns import least_turning
 from printability.nozzle import Nozzle
 
 __all__ = [
-    "ConvexPiece",
     "OrientationOptions",
     "OrientedPiece",
     "PieceMap",

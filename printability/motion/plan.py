@@ -15,7 +15,7 @@ import numpy as np
 from shapely.geometry.base import BaseGeometry
 
 from printability._arrays import take_rows
-from printability.motion.footprints import ConvexPiece
+from printability.shapes import Footprint
 
 if TYPE_CHECKING:
     from printability.motion.orientation import OrientationOptions
@@ -59,7 +59,7 @@ class PlanContext:
     widths: np.ndarray
     scale: np.ndarray | None
     target: BaseGeometry
-    pieces: Sequence[ConvexPiece]
+    pieces: Sequence[Footprint]
     per: float
     beta: np.ndarray
     wtab: np.ndarray
