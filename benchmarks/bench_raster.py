@@ -41,7 +41,7 @@ from shapely.geometry import shape
 from printability.geometry import as_region
 from printability.machine import parse_machine
 from printability.mmc import _raster_kernels as rk
-from printability.mmc._raster_passes import _opening_pass
+from printability.mmc._raster_passes import opening_pass
 from printability.mmc.raster import _erode3, mmc_raster, prepare_raster
 from printability.nozzle import parse_nozzle
 from printability.settings import Settings
@@ -101,10 +101,10 @@ def ours_openings(prob):
     some = rk.pack_bits(cls >= 1)
     centre = rk.pack_bits(cls >= 2)
     tick = lambda: None  # noqa: E731
-    a = _opening_pass(inside, core, prob.touch, prob.full, prob.radius, nx, store=True, tick=tick)
-    b = _opening_pass(some, some, prob.need, prob.dil, prob.radius, nx, store=False, tick=tick)
-    c = _opening_pass(centre, centre, prob.centre, prob.centre, prob.radius, nx, store=False,
-                      tick=tick)
+    a = opening_pass(inside, core, prob.touch, prob.full, prob.radius, nx, store=True, tick=tick)
+    b = opening_pass(some, some, prob.need, prob.dil, prob.radius, nx, store=False, tick=tick)
+    c = opening_pass(centre, centre, prob.centre, prob.centre, prob.radius, nx, store=False,
+                     tick=tick)
     return a, b, c
 
 

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 # The public names load their modules on first use (PEP 562): the reader compiles with numba,
 # and gcode.flavors (which machine profiles import) must not pay for it.
 _WHERE = {
+    "KIND_BLANK": "gcode._lexer", "KIND_COMMAND": "gcode._lexer", "KIND_COMMENT": "gcode._lexer",
+    "KIND_EXTENDED": "gcode._lexer", "KIND_OTHER": "gcode._lexer", "KIND_WORDS": "gcode._lexer",
     "MF_E_RELATIVE": "gcode._machine", "MF_INCH": "gcode._machine",
     "MF_RETRACTED": "gcode._machine", "MF_XYZ_RELATIVE": "gcode._machine",
     "SEGMENT_DTYPE": "gcode.arcs", "arc_chord_count": "gcode.arcs", "arc_length": "gcode.arcs",
@@ -27,6 +29,14 @@ _WHERE = {
 }
 
 if TYPE_CHECKING:  # pragma: no cover
+    from gcode._lexer import (
+        KIND_BLANK,
+        KIND_COMMAND,
+        KIND_COMMENT,
+        KIND_EXTENDED,
+        KIND_OTHER,
+        KIND_WORDS,
+    )
     from gcode._machine import MF_E_RELATIVE, MF_INCH, MF_RETRACTED, MF_XYZ_RELATIVE
     from gcode.arcs import SEGMENT_DTYPE, arc_chord_count, arc_length, linearise
     from gcode.dialects import CATEGORIES, NON_PART_CATEGORIES, feature_category
@@ -55,6 +65,12 @@ def __getattr__(name: str):
 
 __all__ = [
     "CATEGORIES",
+    "KIND_BLANK",
+    "KIND_COMMAND",
+    "KIND_COMMENT",
+    "KIND_EXTENDED",
+    "KIND_OTHER",
+    "KIND_WORDS",
     "LAYER_DTYPE",
     "LINE_DTYPE",
     "MF_E_RELATIVE",

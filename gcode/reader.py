@@ -39,7 +39,17 @@ from pathlib import Path
 
 import numpy as np
 
-from gcode import _lexer
+from gcode._lexer import (
+    KIND_BLANK,
+    KIND_COMMAND,
+    KIND_EXTENDED,
+    KIND_OTHER,
+    LINE_FIELDS,
+    WORD_FIELDS,
+    WORD_MALFORMED,
+    WORD_VALUELESS,
+    lex,
+)
 from gcode._machine import ERR_MESSAGES, run_machine
 from gcode.arcs import linearise
 from gcode.dialects import CommentInfo, feature_category, scan_comments
@@ -71,7 +81,9 @@ LINE_DTYPE = np.dtype(
      ("line_number", "i8"), ("checksum", "i4"), ("checksum_ok", "?"), ("word_first", "i8"),
      ("word_count", "i4"), ("bad_column", "i4"), ("control_column", "i4"), ("layer", "i4")]
 )
-"""One row per line. Offsets are absolute in ``data``; ``-1`` means none."""
+"""One row per line. Offsets are absolute in ``data``; ``-1`` means none. ``kind`` is one of
+:data:`gcode.KIND_BLANK`, ``KIND_COMMENT``, ``KIND_COMMAND``, ``KIND_EXTENDED``,
+``KIND_WORDS``, ``KIND_OTHER``."""
 
 WORD_DTYPE = np.dtype(
     [("line", "i4"), ("letter", "u1"), ("value", "f8"), ("start", "i8"), ("end", "i8"),
@@ -260,20 +272,20 @@ def parse_gcode(
         raise FileFormatError(
             path, "this is UTF-16 text; save the G-code as ASCII or UTF-8", line=1
         )
-    lex_lines, lex_words = _lexer.lex(data, engine=engine)
+    lex_lines, lex_words = lex(data, engine=engine)
     n = len(lex_lines["kind"])
     lines = np.empty(n, LINE_DTYPE)
-    for k in _lexer.LINE_FIELDS:
+    for k in LINE_FIELDS:
         lines[k] = lex_lines[k][:n]
     lines["layer"] = -1
     words = np.empty(len(lex_words["line"]), WORD_DTYPE)
-    for k in _lexer.WORD_FIELDS:
+    for k in WORD_FIELDS:
         words[k] = lex_words[k]
     starts = lex_lines["start"]
 
     _refuse_binary(data, lines, path)
-    if not (lines["kind"] == _lexer.KIND_COMMAND).any() and not (
-        lines["kind"] == _lexer.KIND_EXTENDED
+    if not (lines["kind"] == KIND_COMMAND).any() and not (
+        lines["kind"] == KIND_EXTENDED
     ).any():
         raise FileFormatError(
             path, "no G-code commands found (expected lines such as 'G1 X10 Y10')"
@@ -341,10 +353,10 @@ def _refuse_binary(data: bytes, lines: np.ndarray, path: str) -> None:
             line=i + 1,
         )
     # Lines that are neither G-code nor comments, in bulk, also mean junk.
-    other = int((lines["kind"] == _lexer.KIND_OTHER).sum())
-    meaningful = int((lines["kind"] != _lexer.KIND_BLANK).sum())
+    other = int((lines["kind"] == KIND_OTHER).sum())
+    meaningful = int((lines["kind"] != KIND_BLANK).sum())
     if other > 10 and other > meaningful // 2:
-        i = int(np.flatnonzero(lines["kind"] == _lexer.KIND_OTHER)[0])
+        i = int(np.flatnonzero(lines["kind"] == KIND_OTHER)[0])
         raise FileFormatError(
             path,
             f"{other} of {meaningful} lines are neither G-code commands nor comments; "
@@ -371,15 +383,15 @@ def _refuse_bad_numbers(data: bytes, lines: np.ndarray, words: np.ndarray, path:
     """
     if not len(words):
         return
-    motion = ((lines["kind"] == _lexer.KIND_COMMAND) & (lines["letter"] == ord("G"))
+    motion = ((lines["kind"] == KIND_COMMAND) & (lines["letter"] == ord("G"))
               & (lines["major"] >= 0) & (lines["major"] <= 3) & (lines["minor"] < 0))
     on = motion[words["line"]] & _MOTION_LETTERS[words["letter"]]
     if not on.any():
         return
     v = words["value"]
     # (a malformed word, "X1..5", is the state machine's error to report)
-    valueless = (words["flags"] & _lexer.WORD_VALUELESS) != 0
-    malformed = (words["flags"] & _lexer.WORD_MALFORMED) != 0
+    valueless = (words["flags"] & WORD_VALUELESS) != 0
+    malformed = (words["flags"] & WORD_MALFORMED) != 0
     with np.errstate(invalid="ignore"):
         limit = np.where(words["letter"] == ord("F"), MAX_FEED, MAX_COORDINATE)
         huge = ~valueless & ~malformed & ~(np.abs(v) <= limit)
@@ -429,7 +441,7 @@ def _raise_move_error(data, lines, err, li, path) -> None:
 def _truncation_checks(data, lines, info, path):
     if len(lines) and not data.endswith((b"\n", b"\r")):
         last = lines[-1]
-        if last["kind"] == _lexer.KIND_COMMAND and last["letter"] == ord("G"):
+        if last["kind"] == KIND_COMMAND and last["letter"] == ord("G"):
             yield (
                 f"{path}: the last line has no line terminator and is a move; "
                 "the file may be truncated"

@@ -31,7 +31,7 @@ _HINT = ("A board that restarts in a loop (its power supply, a crashing firmware
          "check both (the baud rate now is ")
 
 
-class _Heard:
+class Heard:
     """What the printer said while connecting: how many lines, how many ``start``
     banners, the last line (for the messages)."""
 
@@ -114,7 +114,7 @@ class ConnectionMixin:
         """Within the block every wait also ends at ``config.connect_timeout`` from now,
         and the lines received are counted for the messages."""
         self._connect_deadline = time.monotonic() + self.config.connect_timeout
-        self._heard = _Heard()
+        self._heard = Heard()
         try:
             yield
         finally:

@@ -52,7 +52,7 @@ import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from machine_io.connection import ConnectionMixin, _Heard
+from machine_io.connection import ConnectionMixin, Heard
 from machine_io.interrupts import InterruptsMixin
 from machine_io.protocol import FirmwareInfo
 from machine_io.reporting import ReportingMixin
@@ -118,7 +118,7 @@ class Host(StreamingMixin, InterruptsMixin, ReportingMixin, ResendMixin, Connect
         self._events: list[str] = []
         self._banner_seen = False
         self._connect_deadline: float | None = None  # while connecting: when to give up
-        self._heard = _Heard()
+        self._heard = Heard()
         self.interrupted = False
         """True once a signal (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT) cancelled a stream."""
         self.interrupted_by: str | None = None

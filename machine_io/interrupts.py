@@ -24,7 +24,7 @@ import serial
 
 from machine_io.machine_state import restore_commands, state_at
 from machine_io.protocol import command_code, parse_reply
-from machine_io.resend import _Stop
+from machine_io.resend import StopStreaming
 from machine_io.session import Progress
 from machine_io.transport import LineReader
 from printability.base.errors import PrinterError
@@ -126,7 +126,7 @@ class InterruptsMixin:
                     self._observe(reply)
                 elif reply.kind == "start":
                     self._restarted = True
-                    raise _Stop
+                    raise StopStreaming
         if self._cancel.is_set():
             return
         if self.config.pause_gcode:

@@ -53,7 +53,7 @@ _HEATING_WAITS = frozenset({"M109", "M190", "M191"})
 _ALIVE = frozenset({"ok", "resend", "busy", "error", "start", "action"})
 
 
-class _Stop(Exception):
+class StopStreaming(Exception):
     """Internal: unwind the streaming loop (the reason is in ``Host._stop_reason``)."""
 
 
@@ -313,7 +313,7 @@ class ResendMixin:
                     f"line {self._acked_reliable}: it lost its line count (a restart without "
                     f"a start banner?)")
                 self._failed = True
-                raise _Stop
+                raise StopStreaming
             self._note(f"ignored a resend request for line {number}, already acknowledged")
             return
         self._suspicious = 0
@@ -388,7 +388,7 @@ class ResendMixin:
                 f"(limit {self.config.max_resends}): the link is too noisy or the baud rate is "
                 f"wrong")
             self._failed = True
-            raise _Stop
+            raise StopStreaming
         self._resends += 1
         self._rewind_target = number
         self._rewind_seq = self._seq + 1
@@ -411,7 +411,7 @@ class ResendMixin:
         if fatal:
             self._stop_reason = f"the printer halted ({shown}); it needs a reset"
             self._fatal = self._failed = True
-            raise _Stop
+            raise StopStreaming
         policy = self.config.error_policy
         if policy == "ignore":
             return
@@ -425,7 +425,7 @@ class ResendMixin:
         self._banner_seen = True
         if self._max_sent:
             self._restarted = True
-            raise _Stop
+            raise StopStreaming
 
     def _on_action(self, text: str) -> None:
         action = text.split(":", 1)[1].strip().split()[0].lower() if ":" in text else ""
@@ -458,7 +458,7 @@ class ResendMixin:
                 f"the printer stopped answering (no reply for "
                 f"{self._timeouts_in_row} × {self._current_timeout():g} s)")
             self._failed = True
-            raise _Stop
+            raise StopStreaming
         if not probe:
             self.transcript.write("Note", f"timeout: retransmitting from line {first}")
         self._timeout_seq = self._seq

@@ -17,7 +17,7 @@ import serial
 
 from machine_io.machine_state import restore_commands, state_at
 from machine_io.program import Program, check_line_lengths
-from machine_io.resend import _Stop
+from machine_io.resend import StopStreaming
 from machine_io.session import Progress, StreamReport
 from printability.base.errors import InputError, PrinterError
 
@@ -139,7 +139,7 @@ class StreamingMixin:
                         break
                     continue
                 self._pump_once(self._more, allow_new=True)
-            except _Stop:
+            except StopStreaming:
                 if self._restarted and not self._fatal:
                     # The firmware restarted under us (its banner came): same link.
                     if self._reconnect(reopen=False):
@@ -227,7 +227,7 @@ class StreamingMixin:
                 return
             try:
                 self._pump_once(lambda: False, allow_new=False)
-            except _Stop:
+            except StopStreaming:
                 return
 
     def _check_axes(self, program: Program) -> None:

@@ -5,9 +5,7 @@ from __future__ import annotations
 
 from printability.base.kernel_cache import *  # noqa: F403
 from printability.base.kernel_cache import (  # noqa: F401
-    _STAMP,
     KERNEL_MODULES,
-    _stamp,
     announce_first_compile,
     check,
     ensure_checked,

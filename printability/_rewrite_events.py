@@ -101,7 +101,7 @@ def eol_of(line: bytes) -> bytes:
 
 
 def first_command_line(lines: np.ndarray) -> int:
-    from gcode._lexer import KIND_BLANK, KIND_COMMENT
+    from gcode import KIND_BLANK, KIND_COMMENT
 
     idx = np.flatnonzero((lines["kind"] != KIND_COMMENT) & (lines["kind"] != KIND_BLANK))
     return int(idx[0]) if idx.size else len(lines)

@@ -42,12 +42,14 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
-from printability.errors import InputError, ResourceError
+from printability.errors import FileFormatError, InputError, ResourceError
 
 __all__ = [
+    "MAX_COORDINATE",
     "Grid",
     "Raster",
     "as_region",
+    "check_coordinates",
     "polygons_of",
     "rotation_matrix",
 ]
@@ -218,3 +220,21 @@ class Raster:
     def area(self) -> float:
         """Sum of the data times the pixel area (meaningful for boolean masks), mm²."""
         return float(np.count_nonzero(self.data)) * self.grid.pixel_area
+
+
+# --------------------------------------------------------------------------- input coordinates
+
+#: Largest coordinate a drawing or map may hold (in its own units): beyond, areas and buffers
+#: lose every digit (1e308 overflows them); no part or map comes near it.
+MAX_COORDINATE = 1e15
+
+
+def check_coordinates(path: object, coords: np.ndarray, *, element: str | None = None) -> None:
+    """Refuse coordinates that are not finite or beyond :data:`MAX_COORDINATE`."""
+    a = np.asarray(coords, dtype=float)
+    bad = ~(np.abs(a) <= MAX_COORDINATE)
+    if bad.any():
+        v = a[bad].flat[0]
+        what = "out of range" if np.isfinite(v) else "not finite"
+        raise FileFormatError(path, f"a coordinate is {what} ({v:g}); expected finite numbers "
+                              f"up to {MAX_COORDINATE:g}", element=element)

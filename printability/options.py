@@ -25,6 +25,5 @@ from printability.base.options import (  # noqa: F401
     STREAM_MODES,
     UNITS,
     Registry,
-    _reg,
 )
 from printability.base.options import __all__ as __all__

@@ -62,9 +62,9 @@ def rewrite(src: SlicerFile, plan: ChordPlan,
     -------
     The output and the rotary words per layer.
     """
-    from printability import _rewrite_kernel
+    from printability._rewrite_kernel import rewrite_compiled
 
     ev = scan_events(src, plan, settings)
-    done = _rewrite_kernel.rewrite_compiled(src, plan, settings, ev) if ev.ev_line.size \
+    done = rewrite_compiled(src, plan, settings, ev) if ev.ev_line.size \
         else None
     return done if done is not None else rewrite_reference(src, plan, settings, events=ev)

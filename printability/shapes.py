@@ -41,7 +41,12 @@ import shapely.affinity
 from shapely.geometry import Polygon
 
 from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
-from printability.geometry import polygons_of, rotation_matrix
+from printability.geometry import (
+    MAX_COORDINATE,
+    check_coordinates,
+    polygons_of,
+    rotation_matrix,
+)
 
 __all__ = ["BOX", "CONIC", "NOZZLE_SIZE_RANGE", "POLYGON", "SHAPES", "Circle", "Ellipse",
            "Footprint", "PolygonOrifice", "Rect", "convex_decomposition", "number"]
@@ -502,8 +507,6 @@ MAX_POLYGON_FILE = 16 << 20
 
 def _inline_polygon(spec: str, text: str) -> Polygon:
     """The largest polygon of ``pts=x y;x y;...``."""
-    from printability.sources._common import MAX_COORDINATE
-
     pts = []
     for vertex in text.split(";"):
         fields = vertex.split()
@@ -524,8 +527,6 @@ def _inline_polygon(spec: str, text: str) -> Polygon:
 
 def _read_polygon_file(path: Path) -> Polygon:
     """Read a polygon outline: .wkt, .txt/.csv/.xy ("x y" per line), or .svg."""
-    from printability.sources._common import MAX_COORDINATE, check_coordinates
-
     if not path.exists():
         raise PrintabilityOSError(f"{path}: nozzle polygon file not found")
     if not path.is_file():

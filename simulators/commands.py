@@ -15,7 +15,7 @@ from collections.abc import Callable, Generator, Iterator
 from typing import Any
 
 from simulators.kinematics import MotionError
-from simulators.line_protocol import _Entry
+from simulators.line_protocol import Entry
 from simulators.parsing import Command
 
 __all__ = ["CommandsMixin", "Heater"]
@@ -57,7 +57,7 @@ class CommandsMixin:
     """Command handlers and reports of :class:`simulators.firmware.Firmware`."""
 
     # ---------------------------------------------------------------- commands
-    def _run(self, entry: _Entry) -> Generator[Any, None, None]:
+    def _run(self, entry: Entry) -> Generator[Any, None, None]:
         """What command ``entry`` does, as a generator of what it waits for."""
         code = entry.cmd.code
         if code in self.fw.noop_codes:
@@ -72,7 +72,7 @@ class CommandsMixin:
         if steps is not None:
             yield from steps
 
-    def _move(self, entry: _Entry) -> Generator[Any, None, None]:
+    def _move(self, entry: Entry) -> Generator[Any, None, None]:
         """G0-G3: plan the blocks, each waiting for a free planner slot; an extruding block
         below the minimum extrusion temperature moves without extruding."""
         cmd, m = entry.cmd, self.motion
@@ -99,7 +99,7 @@ class CommandsMixin:
             self.stats.cold_extrusions += 1
             self._emit(COLD)
 
-    def _dwell(self, entry: _Entry) -> Generator[Any, None, None]:
+    def _dwell(self, entry: Entry) -> Generator[Any, None, None]:
         """G4 P<ms> or S<s>, after the planned moves."""
         cmd = entry.cmd
         ms = cmd.value("P", 0.0) or 0.0
@@ -107,12 +107,12 @@ class CommandsMixin:
         yield ("sync",)
         yield ("time", self.now + (s if s is not None else ms / 1000.0))
 
-    def _home(self, entry: _Entry) -> Generator[Any, None, None]:
+    def _home(self, entry: Entry) -> Generator[Any, None, None]:
         yield ("sync",)
         self.motion.home(entry.cmd)
         yield ("time", self.now + self.fw.homing_time)
 
-    def _modes(self, entry: _Entry) -> None:
+    def _modes(self, entry: Entry) -> None:
         """G90/G91 (positioning), M82/M83 (extruder), G93/G94 (inverse-time feed, only
         under that feed policy)."""
         code, m = entry.cmd.code, self.motion
@@ -125,13 +125,13 @@ class CommandsMixin:
         else:
             m.inverse_time = code == "G93"
 
-    def _set_position(self, entry: _Entry) -> None:
+    def _set_position(self, entry: Entry) -> None:
         self.motion.set_position(entry.cmd)
 
-    def _sync(self, entry: _Entry) -> Generator[Any, None, None]:
+    def _sync(self, entry: Entry) -> Generator[Any, None, None]:
         yield ("sync",)
 
-    def _heat_command(self, entry: _Entry) -> Generator[Any, None, None]:
+    def _heat_command(self, entry: Entry) -> Generator[Any, None, None]:
         """M104/M109 (hotend) and M140/M190 (bed)."""
         code = entry.cmd.code
         if code in ("M104", "M109"):
@@ -141,7 +141,7 @@ class CommandsMixin:
             yield from self._heat(entry.cmd, self.bed, self.fw.bed_residency,
                                   wait=code == "M190")
 
-    def _report(self, entry: _Entry) -> None:
+    def _report(self, entry: Entry) -> None:
         """M105 (temperatures), M114 (position), M115 (capabilities)."""
         code = entry.cmd.code
         if code == "M105":
@@ -152,19 +152,19 @@ class CommandsMixin:
             for line in self._capabilities():
                 self._emit(line)
 
-    def _autoreport_command(self, entry: _Entry) -> None:
+    def _autoreport_command(self, entry: Entry) -> None:
         """M155 S<s>: report the temperatures every s seconds (0: off)."""
         s = entry.cmd.value("S", 0.0) or 0.0
         self._autoreport = max(s, 0.0)
         self._autoreport_at = self.now + s if s > 0 else math.inf
 
-    def _line_number(self, entry: _Entry) -> None:
+    def _line_number(self, entry: Entry) -> None:
         # The number was taken when the line was read; a bare M110 N sets it here.
         cmd = entry.cmd
         if entry.n is None and cmd.has_value("N"):
             self.last_n = int(cmd.words["N"])  # type: ignore[arg-type]
 
-    def _limits(self, entry: _Entry) -> None:
+    def _limits(self, entry: Entry) -> None:
         """M204 (acceleration), M203 (XY feed limit), M220 (feed percentage), M302 (cold
         extrusion)."""
         cmd, m = entry.cmd, self.motion
@@ -185,12 +185,12 @@ class CommandsMixin:
         elif cmd.has_value("S"):
             self.min_extrude_temp = float(cmd.words["S"])  # type: ignore[arg-type]
 
-    def _tool(self, entry: _Entry) -> None:
+    def _tool(self, entry: Entry) -> None:
         code = entry.cmd.code
         if code != "T0":
             self._emit(f"echo:{code} Invalid extruder")
 
-    def _keepalive(self, entry: _Entry) -> None:
+    def _keepalive(self, entry: Entry) -> None:
         """Marlin's M113: S<s> sets the busy keepalive interval (whole seconds, at most 60;
         S0 turns it off), without S it says the interval."""
         cmd = entry.cmd
@@ -202,7 +202,7 @@ class CommandsMixin:
             shown = 0 if math.isinf(self.busy_interval) else round(self.busy_interval)
             self._emit(f"echo:M113 S{shown}")
 
-    def _sd_card(self, entry: _Entry) -> None:
+    def _sd_card(self, entry: Entry) -> None:
         # Marlin's M21 with SDSUPPORT and no card in the slot (CardReader::mount)
         self._emit("echo:No SD card")
 
@@ -246,7 +246,7 @@ class CommandsMixin:
 
 # The handler of each command code (T<n> aside); a code the profile takes as a no-op is not
 # looked up, one in neither is unknown.
-_HANDLERS: dict[str, Callable[[CommandsMixin, _Entry], Iterator[Any] | None]] = {
+_HANDLERS: dict[str, Callable[[CommandsMixin, Entry], Iterator[Any] | None]] = {
     **dict.fromkeys(("G0", "G1", "G2", "G3"), CommandsMixin._move),
     "G4": CommandsMixin._dwell,
     "G28": CommandsMixin._home,

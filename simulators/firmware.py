@@ -52,7 +52,7 @@ from simulators.config import SimConfig
 from simulators.deposition import Deposition, DepositionRecord, write_record
 from simulators.faults import FaultInjector
 from simulators.kinematics import Block, MotionState
-from simulators.line_protocol import Disconnect, LineProtocolMixin, Stall, _Entry, checksum
+from simulators.line_protocol import Disconnect, Entry, LineProtocolMixin, Stall, checksum
 from simulators.planner import BUSY, PlannerMixin
 
 __all__ = ["Disconnect", "Firmware", "Heater", "Stall", "Stats", "checksum"]
@@ -132,7 +132,7 @@ class Firmware(LineProtocolMixin, PlannerMixin, CommandsMixin):
         self._line = bytearray()
         self._line_overflow = False
         self._in_comment = False
-        self._queue: deque[_Entry] = deque()
+        self._queue: deque[Entry] = deque()
         self._planner: deque[Block] = deque()
         self._exec_end = self.now          # end time of the block executing now
         self._prev_block: Block | None = None

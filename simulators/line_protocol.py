@@ -59,7 +59,7 @@ class Disconnect:
 
 
 @dataclass
-class _Entry:
+class Entry:
     n: int | None
     cmd: Command
     drop_ok: bool = False
@@ -238,5 +238,5 @@ class LineProtocolMixin:
             self.executed.append((n, cmd.text))
             self._kill()
             return
-        self._queue.append(_Entry(n, cmd, **entry_flags))
+        self._queue.append(Entry(n, cmd, **entry_flags))
 

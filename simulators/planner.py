@@ -13,7 +13,7 @@ import math
 from typing import Any
 
 from simulators.kinematics import Block, junction_speed, trapezoid_time
-from simulators.line_protocol import _Entry
+from simulators.line_protocol import Entry
 
 __all__ = ["BUSY", "PlannerMixin"]
 
@@ -109,7 +109,7 @@ class PlannerMixin:
             return not self._planner
         return self.now >= wait[1]
 
-    def _ok(self, entry: _Entry) -> None:
+    def _ok(self, entry: Entry) -> None:
         for _ in range(entry.busy):
             self._emit(BUSY)
             self.stats.busy_sent += 1

@@ -187,11 +187,11 @@ def precheck_tolerance(layers: LayerStack, nozs: Sequence[Nozzle], mach: Machine
     engine settles below the pixel (one circle or ellipse) are checked after the first
     pass instead, from the width it measured.
     """
-    from printability.mmc.raster import _band_settles
+    from printability.mmc.raster import band_settles
 
     volume = uses_volume([lay.height for lay in layers])
     for noz in nozs:
-        if _band_settles(noz):
+        if band_settles(noz):
             # its upper bound is settled below the pixel: the width is no longer 2·h per mm
             # of boundary, and is only known after the first pass (checked then)
             continue

@@ -32,9 +32,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from printability.mmc import _raster_kernels as _k
+from printability.mmc._raster_kernels import (
+    ALL_ONES,
+    build_tables,
+    dilate_words,
+    erode_words,
+    flat_runs,
+    near_needy,
+    table_padding,
+    update_tables,
+)
 
-__all__ = ["PassResult", "_mask_runs", "_opening_pass"]
+__all__ = ["PassResult", "_mask_runs", "opening_pass"]
 
 
 @dataclass(frozen=True)
@@ -104,12 +113,12 @@ class PassResult:
 
 def _last_mask(nx: int) -> np.uint64:
     r = nx % 64
-    return _k.ALL_ONES if r == 0 else np.uint64((1 << r) - 1)
+    return ALL_ONES if r == 0 else np.uint64((1 << r) - 1)
 
 
-def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dilate_k: np.ndarray,
-                  radius: int, nx: int, *, store: bool, tick: Callable[[], None],
-                  check: Callable[[int], None] | None = None) -> PassResult:
+def opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dilate_k: np.ndarray,
+                 radius: int, nx: int, *, store: bool, tick: Callable[[], None],
+                 check: Callable[[int], None] | None = None) -> PassResult:
     """∪_k (inp ⊖ erode_k[k]) ⊕ dilate_k[k], ∩ target, on packed rows (see module docstring).
 
     ``check(band_words)`` is called before the per-angle words are allocated.
@@ -125,15 +134,15 @@ def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dila
                            order_from_centre=False)
     reach_runs = _to_runs(_mask_runs(dilate_k.any(axis=0), radius), dilate=True,
                           order_from_centre=True)
-    pr, pw = _k.table_padding(radius)
+    pr, pw = table_padding(radius)
     lev_e = 1 + max([r.max_level for r in er] + [union_runs.max_level])
     t_and = np.zeros((lev_e, ny + 2 * pr, nw + 2 * pw), np.uint64)
-    _k.build_tables(inp, t_and, pr, pw, True, 0, ny)
+    build_tables(inp, t_and, pr, pw, True, 0, ny)
     fa = t_and.reshape(-1)
     nwp = t_and.shape[2]
 
     def flat(r: _Runs, table: np.ndarray) -> np.ndarray:
-        return _k.flat_runs(r.table, table.shape, pr, pw)
+        return flat_runs(r.table, table.shape, pr, pw)
 
     all_i = np.repeat(np.arange(ny, dtype=np.int64), nw)
     all_w = np.tile(np.arange(nw, dtype=np.int64), ny)
@@ -141,18 +150,18 @@ def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dila
     # deep: held at every angle (erosion by the union of the kernels); maybe: may be held at
     # some angle (erosion by their intersection); only the words between are computed per angle
     deep = np.empty((ny, nw), np.uint64)
-    _k.erode_words(fa, nwp, flat(union_runs, t_and), all_i, all_w, last, deep, empty)
+    erode_words(fa, nwp, flat(union_runs, t_and), all_i, all_w, last, deep, empty)
     maybe = np.empty((ny, nw), np.uint64)
-    _k.erode_words(fa, nwp, flat(common_runs, t_and), all_i, all_w, last, maybe, empty)
+    erode_words(fa, nwp, flat(common_runs, t_and), all_i, all_w, last, maybe, empty)
     del all_i, all_w
     # pixels no angle can reach are dropped from the dilation target, so that words whose
     # remaining pixels are out of reach are not recomputed at every angle
     lev_d = 1 + max([r.max_level for r in di] + [reach_runs.max_level])
     t_or = np.zeros((lev_d, ny + 2 * pr, nw + 2 * pw), np.uint64)
-    _k.build_tables(maybe, t_or, pr, pw, False, 0, ny)
+    build_tables(maybe, t_or, pr, pw, False, 0, ny)
     reach = np.zeros((ny, nw), np.uint64)
     fo = t_or.reshape(-1)
-    _k.dilate_words(fo, nwp, flat(reach_runs, t_or), target, reach)
+    dilate_words(fo, nwp, flat(reach_runs, t_or), target, reach)
     band = np.flatnonzero((maybe & ~deep).reshape(-1))
     del maybe
     band_i = (band // nw).astype(np.int64)
@@ -161,23 +170,23 @@ def _opening_pass(inp: np.ndarray, target: np.ndarray, erode_k: np.ndarray, dila
         check(len(band))
     values = np.empty((n if store else 0, len(band)), np.uint64)
     work = deep.copy()
-    _k.build_tables(work, t_or, pr, pw, False, 0, ny)
+    build_tables(work, t_or, pr, pw, False, 0, ny)
     union = np.zeros((ny, nw), np.uint64)
     # a dilation of output word (i, w) reads P rows i ± radius and words w ± rw
     rw = radius // 64 + 3
     for k in range(n):
         if store:
             sel_i, sel_w = band_i, band_w
-            _k.erode_words(fa, nwp, flat(er[k], t_and), sel_i, sel_w, last, work, values[k])
+            erode_words(fa, nwp, flat(er[k], t_and), sel_i, sel_w, last, work, values[k])
         else:
             # only P words a dilation can still read need to be right: those near words
             # with target pixels not yet covered (stale words elsewhere are never read)
-            sel = _k.near_needy(reach, union, band_i, band_w, radius, rw)
+            sel = near_needy(reach, union, band_i, band_w, radius, rw)
             sel_i, sel_w = band_i[sel], band_w[sel]
-            _k.erode_words(fa, nwp, flat(er[k], t_and), sel_i, sel_w, last, work, empty)
+            erode_words(fa, nwp, flat(er[k], t_and), sel_i, sel_w, last, work, empty)
         if len(di[k].table):
-            _k.update_tables(work, t_or, pr, pw, sel_i, sel_w, False)
-            _k.dilate_words(fo, nwp, flat(di[k], t_or), reach, union)
+            update_tables(work, t_or, pr, pw, sel_i, sel_w, False)
+            dilate_words(fo, nwp, flat(di[k], t_or), reach, union)
         tick()
     return PassResult(union, deep, band_i, band_w, values)
 

@@ -41,13 +41,16 @@ from shapely.geometry.base import BaseGeometry
 from printability.errors import ResourceError
 from printability.geometry import Grid, polygons_of
 from printability.machine import Machine
-from printability.mmc import _raster_kernels as _k
+from printability.mmc._raster_kernels import (
+    classify_rings,
+    coverage_rings,
+)
 from printability.nozzle import Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
 
 __all__ = [
     "RasterProblem",
-    "_check_memory",
+    "check_memory",
     "estimate_memory",
     "prepare_raster",
     "rasterize_region",
@@ -59,7 +62,7 @@ _BUFFER_QS = 16
 _BUFFER_KAPPA = math.cos(3 * math.pi / (8 * _BUFFER_QS)) - 1.05e-3
 
 
-def _rings(geom: BaseGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def oriented_rings(geom: BaseGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closed rings of a polygonal geometry, shells CCW and holes CW, concatenated."""
     xs, ys, starts = [], [], [0]
     for poly in polygons_of(geom):
@@ -93,11 +96,11 @@ def rasterize_region(region: BaseGeometry, grid: Grid) -> tuple[np.ndarray, np.n
     -----
     Cost O(nx·ny + Σ pixels crossed by ∂G); memory 19 bytes per pixel at peak.
     """
-    xs, ys, starts = _rings(region)
+    xs, ys, starts = oriented_rings(region)
     scale = float(np.max(np.abs(np.concatenate([xs, ys])))) if len(xs) else 1.0
-    cls = _k.classify_rings(xs, ys, starts, grid.x0, grid.y0, grid.h, grid.nx, grid.ny,
-                            _eps(grid.h, scale))
-    cov = _k.coverage_rings(xs, ys, starts, grid.x0, grid.y0, grid.h, grid.nx, grid.ny)
+    cls = classify_rings(xs, ys, starts, grid.x0, grid.y0, grid.h, grid.nx, grid.ny,
+                         _eps(grid.h, scale))
+    cov = coverage_rings(xs, ys, starts, grid.x0, grid.y0, grid.h, grid.nx, grid.ny)
     np.negative(cov, out=cov)  # CCW shells accumulate negatively
     cut = (cls == 1) | (cls == 2)
     np.clip(cov, 0.0, 1.0, out=cov)
@@ -117,7 +120,7 @@ def _classify_small(rings: tuple[np.ndarray, np.ndarray, np.ndarray], radius: in
     x0 = -(radius + 0.5) * h + sx
     y0 = -(radius + 0.5) * h + sy
     scale = float(np.max(np.abs(np.concatenate([xs, ys])))) + radius * h
-    return _k.classify_rings(xs, ys, starts, x0, y0, h, n, n, _eps(h, scale))
+    return classify_rings(xs, ys, starts, x0, y0, h, n, n, _eps(h, scale))
 
 
 def _merged(geom: BaseGeometry) -> BaseGeometry:
@@ -181,7 +184,7 @@ def _angular_cells(machine: Machine, nozzle: Nozzle, angles: np.ndarray) -> tupl
     return float(max(gaps)), wrap
 
 
-def _kernel_radius(nozzle: Nozzle, h: float, delta: float, quad_segs: int) -> int:
+def kernel_radius(nozzle: Nozzle, h: float, delta: float, quad_segs: int) -> int:
     reach = nozzle.radius / math.cos(math.pi / max(8, 4 * quad_segs)) + delta * 1.01 + 2 * h
     return math.ceil(reach / h) + 1
 
@@ -197,11 +200,11 @@ def _kernels(nozzle: Nozzle, angles: np.ndarray, h: float, delta: float, radius:
         outer = _merged(nozzle.outline(float(phi), quad_segs=quad_segs, mode="outer"))
         inner = _merged(nozzle.outline(float(phi), quad_segs=quad_segs, mode="inner"))
         fine = _merged(nozzle.outline(float(phi), quad_segs=max(quad_segs, 64), mode="inner"))
-        stacks["touch"][k] = _classify_small(_rings(outer), radius, h) >= 1
-        stacks["full"][k] = _classify_small(_rings(inner), radius, h) == 3
-        stacks["centre"][k] = _classify_small(_rings(fine), radius, h) >= 2
-        core = _rings(inner.buffer(-grow, quad_segs=_BUFFER_QS) if grow > 0 else inner)
-        grown = _rings(outer.buffer(grow, quad_segs=_BUFFER_QS) if grow > 0 else outer)
+        stacks["touch"][k] = _classify_small(oriented_rings(outer), radius, h) >= 1
+        stacks["full"][k] = _classify_small(oriented_rings(inner), radius, h) == 3
+        stacks["centre"][k] = _classify_small(oriented_rings(fine), radius, h) >= 2
+        core = oriented_rings(inner.buffer(-grow, quad_segs=_BUFFER_QS) if grow > 0 else inner)
+        grown = oriented_rings(outer.buffer(grow, quad_segs=_BUFFER_QS) if grow > 0 else outer)
         need = np.zeros((n, n), bool)
         for sx in (-half, 0.0, half):
             for sy in (-half, 0.0, half):
@@ -234,7 +237,7 @@ def estimate_memory(grid: Grid, n_angles: int, radius: int, *, band_words: int |
     return int(rasters + words + stored + results + kernels)
 
 
-def _check_memory(need: int, settings: Settings, what: str) -> None:
+def check_memory(need: int, settings: Settings, what: str) -> None:
     if need > settings.max_memory:
         raise ResourceError(
             f"the raster engine would need about {need / 2**20:,.0f} MiB for {what}, more than "
@@ -258,7 +261,7 @@ def prepare_raster(region: BaseGeometry, nozzle: Nozzle, machine: Machine, *,
                                        period=nozzle.symmetry_period), dtype=float)
     gap, wrap = _angular_cells(machine, nozzle, angles)
     delta = nozzle.radius * math.radians(gap) / 2.0
-    radius = _kernel_radius(nozzle, h, delta, settings.quad_segs)
+    radius = kernel_radius(nozzle, h, delta, settings.quad_segs)
     minx, miny, maxx, maxy = region.bounds
     # P may lie up to the nozzle radius outside G (offset nozzles): grow the grid by it.
     margin = nozzle.radius + delta + 2 * h
@@ -266,8 +269,8 @@ def prepare_raster(region: BaseGeometry, nozzle: Nozzle, machine: Machine, *,
     ny_est = math.ceil((maxy - miny + 2 * margin) / h) + 1
     fake = Grid(0.0, 0.0, h, max(nx_est, 1), max(ny_est, 1))
     # the per-angle words are sized (and checked again) once the band is known
-    _check_memory(estimate_memory(fake, len(angles), radius, band_words=0), settings,
-                  f"a {nx_est} × {ny_est} grid at h = {h:g} mm with {len(angles)} angles")
+    check_memory(estimate_memory(fake, len(angles), radius, band_words=0), settings,
+                 f"a {nx_est} × {ny_est} grid at h = {h:g} mm with {len(angles)} angles")
     grid = Grid.covering(region.bounds, h, margin=margin)
     cls, cov = rasterize_region(region, grid)
     stacks = _kernels(nozzle, angles, h, delta, radius, settings.quad_segs)

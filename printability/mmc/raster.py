@@ -110,15 +110,20 @@ from shapely.geometry.base import BaseGeometry
 from printability.errors import InputError
 from printability.geometry import Grid, Raster, as_region
 from printability.machine import Machine
-from printability.mmc import _raster_kernels as _k
-from printability.mmc import _raster_runs as _runs
-from printability.mmc._raster_passes import PassResult, _opening_pass
+from printability.mmc._raster_kernels import count_bits_into, pack_bits, unpack_bits
+from printability.mmc._raster_passes import PassResult, opening_pass
 from printability.mmc._raster_prepare import (
     RasterProblem,
-    _check_memory,
+    check_memory,
     estimate_memory,
     prepare_raster,
     rasterize_region,
+)
+from printability.mmc._raster_runs import (
+    boundary_segments,
+    extract_runs,
+    label_runs,
+    overlap_pairs,
 )
 from printability.mmc.components import angle_ranges, component_labels
 from printability.mmc.result import (
@@ -156,7 +161,7 @@ def _bits_to_geometry(bits: np.ndarray, grid: Grid) -> BaseGeometry:
     whose interior point falls on a set pixel are kept. Faces touch at most
     at corners, so their MultiPolygon is valid. Cost O(ny·nx/64 + boundary).
     """
-    seg = _runs.boundary_segments(bits, grid.nx)
+    seg = boundary_segments(bits, grid.nx)
     if len(seg) == 0:
         return MultiPolygon()
     ends = np.stack([seg[:, :2], seg[:, 2:]], axis=1) * grid.h + np.array([grid.x0, grid.y0])
@@ -183,7 +188,7 @@ def _runs_to_geometry(rr: np.ndarray, rs: np.ndarray, re: np.ndarray, grid: Grid
     for r, a, b in zip((rr - r0).tolist(), (rs - c0).tolist(), (re - c0).tolist(), strict=True):
         mask[r, a:b] = True
     sub = Grid(grid.x0 + c0 * grid.h, grid.y0 + r0 * grid.h, grid.h, c1 - c0, r1 - r0)
-    return _bits_to_geometry(_k.pack_bits(mask), sub)
+    return _bits_to_geometry(pack_bits(mask), sub)
 
 
 # --------------------------------------------------------------------------- components
@@ -198,8 +203,8 @@ def _components(packed: PackedMasks, angles: np.ndarray, wrap: bool, grid: Grid
     counts = []
     total = 0
     for k in range(n):
-        rr, rs, re = _runs.extract_runs(packed.bits(k), grid.nx)
-        lab, cnt = _runs.label_runs(rr, rs, re)
+        rr, rs, re = extract_runs(packed.bits(k), grid.nx)
+        lab, cnt = label_runs(rr, rs, re)
         runs.append((rr, rs, re))
         labels.append(lab)
         counts.append(int(cnt))
@@ -210,7 +215,7 @@ def _components(packed: PackedMasks, angles: np.ndarray, wrap: bool, grid: Grid
         steps.append((n - 1, 0))
     for k, k2 in steps:
         a, b = runs[k], runs[k2]
-        pr = _runs.overlap_pairs(a[0], a[1], a[2], labels[k], b[0], b[1], b[2], labels[k2])
+        pr = overlap_pairs(a[0], a[1], a[2], labels[k], b[0], b[1], b[2], labels[k2])
         code = np.unique(pr[:, 0] * (1 << 32) + pr[:, 1])
         pairs[(k, k2)] = set(zip((code >> 32).tolist(), (code & 0xFFFFFFFF).tolist(),
                                  strict=True))
@@ -285,7 +290,7 @@ def _erode3(mask: np.ndarray) -> np.ndarray:
 def _popcount(bits: np.ndarray) -> int:
     if hasattr(np, "bitwise_count"):
         return int(np.bitwise_count(bits).sum(dtype=np.int64))
-    return int(_k.unpack_bits(bits, bits.shape[-1] * 64).sum())
+    return int(unpack_bits(bits, bits.shape[-1] * 64).sum())
 
 
 # --------------------------------------------------------------------------- band
@@ -295,7 +300,7 @@ def _popcount(bits: np.ndarray) -> int:
 BAND_LEVELS = 6
 
 
-def _band_settles(nozzle: Nozzle) -> bool:
+def band_settles(nozzle: Nozzle) -> bool:
     """Whether :mod:`printability.mmc._band` applies: one circle or ellipse orifice."""
     return len(nozzle.footprints) == 1 and nozzle.footprints[0].conic
 
@@ -304,8 +309,15 @@ def _settle_band(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, s_inner: 
                  outer_mask: np.ndarray) -> dict:
     """Certified bounds and estimate over the uncertain pixels (:mod:`._band`)."""
     from printability.geometry import rotation_matrix
-    from printability.mmc import _band
-    from printability.mmc._raster_prepare import _rings
+    from printability.mmc._band import (
+        BandBoundary,
+        BandFootprint,
+        BandRaster,
+        edges_of,
+        neighbour_pairs,
+        settle_band,
+    )
+    from printability.mmc._raster_prepare import oriented_rings
 
     f = nozzle.footprints[0]
     # the same set with the longer semi-axis first (a turn by 90° swaps them)
@@ -315,16 +327,16 @@ def _settle_band(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, s_inner: 
     half = math.radians(prob.angle_gap) / 2.0 if len(prob.angles) > 1 else 0.0
     cells = np.array([[*np.linalg.inv(m).ravel(), math.radians(t), half]
                       for m, t in zip(lmats, totals, strict=True)])
-    edges, prev_, next_ = _band.edges_of(*_rings(g))
+    edges, prev_, next_ = edges_of(*oriented_rings(g))
     scale = 1.0 + float(np.abs(edges).max()) if len(edges) else 1.0
-    ptr, idx = _band.neighbour_pairs(edges, 2.02 * a + 1e-9 * scale)
+    ptr, idx = neighbour_pairs(edges, 2.02 * a + 1e-9 * scale)
     uncertain = (prob.cov > 0.0) & ~s_inner
     # the support function of an ellipse turns by at most (a − b) per radian (_band)
     delta = (a - b) * half * (1.0 + 1e-9)
-    out = _band.settle_band(
-        g, _band.BandRaster(prob.grid, prob.cls, prob.cov, uncertain, outer_mask),
-        _band.BandBoundary(edges, prev_, next_, ptr, idx),
-        _band.BandFootprint(lmats, cells, a, b, delta), max_level=BAND_LEVELS)
+    out = settle_band(
+        g, BandRaster(prob.grid, prob.cls, prob.cov, uncertain, outer_mask),
+        BandBoundary(edges, prev_, next_, ptr, idx),
+        BandFootprint(lmats, cells, a, b, delta), max_level=BAND_LEVELS)
     out.update(pixels=int(np.count_nonzero(uncertain)), max_level=BAND_LEVELS)
     return out
 
@@ -459,23 +471,23 @@ def _opening_passes(prob: RasterProblem, settings: Settings) -> _Passes:
     grid = prob.grid
     n = len(prob.angles)
     cls = prob.cls
-    inside = _k.pack_bits(cls == 3)
+    inside = pack_bits(cls == 3)
     with _progress(settings.progress, 3 * n) as tick:
         # a pixel wholly inside a closed footprint makes it touch its 8 neighbours, which
         # must then be inside pixels: S_inner ⊆ I ⊖ (3×3 box)
-        core = _k.pack_bits(_erode3(cls == 3))
-        inner = _opening_pass(
+        core = pack_bits(_erode3(cls == 3))
+        inner = opening_pass(
             inside, core, prob.touch, prob.full, prob.radius, grid.nx, store=True, tick=tick,
-            check=lambda words: _check_memory(
+            check=lambda words: check_memory(
                 estimate_memory(grid, n, prob.radius, band_words=words), settings,
                 f"the motion restriction at {n} angles ({words:,} words vary with the angle)"))
         del core
-        some = _k.pack_bits(cls >= 1)
-        outer = _opening_pass(some, some, prob.need, prob.dil, prob.radius, grid.nx,
-                              store=False, tick=tick)
-        centre_in = _k.pack_bits(cls >= 2)
-        est = _opening_pass(centre_in, centre_in, prob.centre, prob.centre, prob.radius,
-                            grid.nx, store=False, tick=tick)
+        some = pack_bits(cls >= 1)
+        outer = opening_pass(some, some, prob.need, prob.dil, prob.radius, grid.nx,
+                             store=False, tick=tick)
+        centre_in = pack_bits(cls >= 2)
+        est = opening_pass(centre_in, centre_in, prob.centre, prob.centre, prob.radius,
+                           grid.nx, store=False, tick=tick)
         del some, centre_in
     return _Passes(inner, outer, est)
 
@@ -503,9 +515,9 @@ def _lost_bounds(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, passes: _
     grid = prob.grid
     h2 = grid.pixel_area
     target_area = float(g.area)
-    s_inner = _k.unpack_bits(passes.inner.union, grid.nx)
+    s_inner = unpack_bits(passes.inner.union, grid.nx)
     inner_area = float(np.count_nonzero(s_inner)) * h2
-    outer_mask = _k.unpack_bits(passes.outer.union, grid.nx)
+    outer_mask = unpack_bits(passes.outer.union, grid.nx)
     outer_area = float(prob.cov[outer_mask].sum()) * h2
     tol = 1e-9 * target_area
     lo = max(0.0, target_area - outer_area - tol)
@@ -514,7 +526,7 @@ def _lost_bounds(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, passes: _
     lost_est = (int(np.count_nonzero(prob.cls >= 2)) - _popcount(passes.est.union)) * h2
     settled = None
     notes = []
-    if settle_band and _band_settles(nozzle):
+    if settle_band and band_settles(nozzle):
         settled = _settle_band(g, nozzle, prob, s_inner, outer_mask)
         hi = min(hi, min(target_area, settled["upper"] + tol))
         lo = max(lo, settled["lower"] - tol)
@@ -541,7 +553,7 @@ def _motion_restriction(prob: RasterProblem, inner: PassResult) -> MotionRestric
     flat_words = (inner.band_i * inner.base.shape[1] + inner.band_w).astype(np.int64)
     packed = PackedMasks(grid, inner.base, flat_words, inner.values)
     count = np.zeros(grid.shape, np.uint16)
-    _k.count_bits_into(count, inner.base, inner.band_i, inner.band_w, inner.values, n)
+    count_bits_into(count, inner.base, inner.band_i, inner.band_w, inner.values, n)
     masks = None
     if n * grid.nx * grid.ny <= _MASKS_LIMIT:
         masks = Raster(grid, np.stack([packed.mask(k).data for k in range(n)]))
@@ -551,7 +563,7 @@ def _motion_restriction(prob: RasterProblem, inner: PassResult) -> MotionRestric
 
 def _as_built(union: np.ndarray, grid: Grid) -> tuple[BaseGeometry | None, list[str]]:
     """S_inner as geometry when its runs are few enough (else None and a note)."""
-    rr, _, _ = _runs.extract_runs(union, grid.nx)
+    rr, _, _ = extract_runs(union, grid.nx)
     if len(rr) <= _VECTOR_RUNS:
         return _bits_to_geometry(union, grid), []
     return None, [f"as-built geometry not vectorised ({len(rr):,} pixel runs); "

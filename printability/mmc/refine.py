@@ -113,14 +113,14 @@ def refinement_work(region: BaseGeometry, nozzle: Nozzle, machine: Machine, engi
     """
     if engine == "raster":
         from printability.analysis import raster_work
-        from printability.mmc._raster_prepare import _kernel_radius, estimate_memory
+        from printability.mmc._raster_prepare import estimate_memory, kernel_radius
 
         work, parts = raster_work(region.bounds, nozzle, machine, settings)
         step = settings.angle_step
         angles = machine.angles(step=step, period=nozzle.symmetry_period)
         gap = _angle_step(machine, settings) if len(angles) > 1 else 0.0
         delta = nozzle.radius * math.radians(gap) / 2.0
-        radius = _kernel_radius(nozzle, settings.resolution, delta, settings.quad_segs)
+        radius = kernel_radius(nozzle, settings.resolution, delta, settings.quad_segs)
         grid = Grid(0.0, 0.0, settings.resolution, max(parts["nx"], 1), max(parts["ny"], 1))
         return work, estimate_memory(grid, len(angles), radius, band_words=None)
     if engine == "exact":

@@ -8,10 +8,10 @@ half-plane moved out a further ε(1 − cos φ)).
 Each clip evaluates only C_j's two sides and the cap planes that face the edge's ends
 (:func:`_window`, :func:`_clip_windows`): a plane that holds both ends by a margin cannot
 move the interval, so the result is the full loop's to the bit, at about a tenth of the
-planes. An edge starts where the last one ended, so :func:`_boundary` keeps each
+planes. An edge starts where the last one ended, so :func:`boundary_pieces` keeps each
 neighbour's window of that corner (a third of the windows are found so), and the two
 ends' windows are evaluated as one arc where they overlap (:func:`_clip_windows`).
-:func:`_green` gives the area the pieces enclose.
+:func:`green_area` gives the area the pieces enclose.
 
 Coordinates and lengths in mm; the polygons' layout is :mod:`printability.motion._bead_polygons`'s.
 """
@@ -33,7 +33,7 @@ from printability.motion._kernels import segments2 as _segments2
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
-__all__ = ["_boundary", "_clip", "_clip_windows", "_corner_cosines", "_green", "_window"]
+__all__ = ["_clip", "_clip_windows", "_corner_cosines", "_window", "boundary_pieces", "green_area"]
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -186,7 +186,7 @@ def _corner_cosines(k):  # pragma: no cover
 
 
 class _Memo(NamedTuple):
-    """The working arrays of :func:`_boundary`: polygon i's neighbours (``near``, ``mark[j]
+    """The working arrays of :func:`boundary_pieces`: polygon i's neighbours (``near``, ``mark[j]
     == i`` once j is listed), per slot of ``near`` the corner whose window against that
     neighbour is kept (``w_at``, an index into the corners) and the window (``w_j``,
     ``w_w``), and an edge's covered intervals (``t_lo``, ``t_hi``, by start)."""
@@ -201,7 +201,7 @@ class _Memo(NamedTuple):
 
 
 @numba.njit(cache=True, nogil=True)
-def _boundary(beads, polys, cells, eps, lo, hi):  # pragma: no cover
+def boundary_pieces(beads, polys, cells, eps, lo, hi):  # pragma: no cover
     """The uncovered pieces of the edges of polygons ``lo … hi - 1`` (the tie rule of the
     module docs), in order: what each polygon keeps depends on the polygons only. Rows
     (x0, y0, x1, y1, how far the piece's line stands beyond ρ from its bead's path).
@@ -384,7 +384,7 @@ def _emit(out, n_out, row, memo, n_iv):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _green(edges, x0, y0):  # pragma: no cover
+def green_area(edges, x0, y0):  # pragma: no cover
     """The signed area the edges enclose (Green's theorem, about ``(x0, y0)``), summed in
     their order."""
     area = 0.0

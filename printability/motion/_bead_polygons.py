@@ -6,7 +6,7 @@ circle of radius ρ with its corners at (m + ½)·π/k for every bead (see
 2k + 2 half-planes ``ux·x + uy·y ≤ h``, clockwise from its left side (normal l, the
 segment's direction turned by +90°): the left side, the k edges of the cap at b (Q's normals
 from the one just clockwise of l, ``phase`` radians from it, in steps of π/k), the right
-side, the k edges of the cap at a; corner j ends edge j. :func:`_grid` bins the polygons'
+side, the k edges of the cap at a; corner j ends edge j. :func:`cell_grid` bins the polygons'
 boxes for the neighbour searches and point location.
 
 Coordinates and lengths in mm, angles in radians.
@@ -25,11 +25,11 @@ from printability.motion.records import CellGrid
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
-__all__ = ["_grid", "_polygons"]
+__all__ = ["bead_polygons", "cell_grid"]
 
 
 @numba.njit(cache=True, nogil=True)
-def _polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
+def bead_polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
     """Half-planes, corners and boxes of every bead polygon, its edges per half turn and
     the phase of its cap planes (see the module docs)."""
     n = len(ax)
@@ -123,7 +123,7 @@ def _polygons(ax, ay, bx, by, rho, rmax):  # pragma: no cover
     return off, ux, uy, h, vx, vy, box, k, phase
 
 
-def _grid(box: np.ndarray) -> CellGrid:
+def cell_grid(box: np.ndarray) -> CellGrid:
     """Uniform grid over the polygons' boxes, about one polygon per cell (CSR)."""
     x0, y0 = float(box[:, 0].min()), float(box[:, 1].min())
     w = float(box[:, 2].max()) - x0

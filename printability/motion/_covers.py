@@ -18,8 +18,8 @@ Each decision is therefore the one ``shapely.covers`` gives; only the time
 changes. :func:`covers_rings` applies these rules to given rings, the edges
 near P found on the grid of :mod:`printability.motion._boundary_grid`; the
 fused kernel of :mod:`printability.motion._first_fits` applies them through the
-same edge test (:func:`_edges_state`, :func:`_clip`, half-planes visited in
-the order of :func:`_order`). :func:`contains_xy` and :func:`covers` are the
+same edge test (:func:`edges_state`, :func:`clip_fraction`, half-planes visited in
+the order of :func:`direction_order`). :func:`contains_xy` and :func:`covers` are the
 shapely answers for a shapely target or a bead union.
 """
 
@@ -41,7 +41,8 @@ from printability.motion.beadunion import BeadUnion, union_contains_xy, union_co
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
-__all__ = ["EPS", "_clip", "_edges_state", "_order", "contains_xy", "covers", "covers_rings"]
+__all__ = ["EPS", "clip_fraction", "contains_xy", "covers", "covers_rings", "direction_order",
+           "edges_state"]
 
 
 EPS = 1e-9
@@ -49,7 +50,7 @@ EPS = 1e-9
 
 
 @numba.njit(cache=True, _nrt=False)
-def _clip(ax, ay, bx, by, cu, su, h, off, order):  # pragma: no cover
+def clip_fraction(ax, ay, bx, by, cu, su, h, off, order):  # pragma: no cover
     """Fraction of [a, b] inside all half-planes ``cu·x + su·y ≤ h + off`` (Liang–Barsky).
 
     The half-planes are visited in ``order`` (the two sides and the two caps of
@@ -95,12 +96,12 @@ def _decide(rings, planes, grid, todo, eps, order, out):  # pragma: no cover
             bx1 = max(bx1, x)
             by0 = min(by0, y)
             by1 = max(by1, y)
-        out[i] = _edges_state(cu[i], su[i], h[i], (bx0 - eps, by0 - eps, bx1 + eps, by1 + eps),
-                              grid.cells, grid.packed, eps, order, found)
+        out[i] = edges_state(cu[i], su[i], h[i], (bx0 - eps, by0 - eps, bx1 + eps, by1 + eps),
+                             grid.cells, grid.packed, eps, order, found)
 
 
 @numba.njit(cache=True, _nrt=False)
-def _edges_state(cu, su, h, box, cells, packed, eps, order, found):  # pragma: no cover
+def edges_state(cu, su, h, box, cells, packed, eps, order, found):  # pragma: no cover
     """One footprint of :func:`_decide`: 0 if ∂G enters it, -1 if ∂G grazes it, else 1.
 
     ``box`` is the ring's bounding box ``(x0, y0, x1, y1)`` already grown by ``eps``; the
@@ -126,9 +127,9 @@ def _edges_state(cu, su, h, box, cells, packed, eps, order, found):  # pragma: n
                 if max(ax, bx) < bx0 or min(ax, bx) > bx1 or max(ay, by) < by0 \
                         or min(ay, by) > by1:
                     continue
-                if _clip(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
+                if clip_fraction(ax, ay, bx, by, cu, su, h, eps, order) < 0.0:
                     continue
-                t = _clip(ax, ay, bx, by, cu, su, h, -eps, order)
+                t = clip_fraction(ax, ay, bx, by, cu, su, h, -eps, order)
                 # (a square root, not libm's hypot: coordinates in mm cannot overflow)
                 if t > 0.0 and t * math.sqrt((bx - ax) ** 2 + (by - ay) ** 2) > eps:
                     found[0] = items[q]
@@ -138,7 +139,7 @@ def _edges_state(cu, su, h, box, cells, packed, eps, order, found):  # pragma: n
 
 
 @functools.lru_cache(maxsize=8)
-def _order(d: int) -> np.ndarray:
+def direction_order(d: int) -> np.ndarray:
     """Every direction once, coarse to fine: 0 and d/2 (normal to the move), d/4 and 3d/4
     (along it), then the diagonals, then halfway between those…
 
@@ -187,7 +188,8 @@ def covers_rings(target: BaseGeometry, rings: np.ndarray, cu: np.ndarray, su: np
     state = np.full(n, 0, np.int8)
     grid = boundary_grid(target)
     planes = (np.ascontiguousarray(cu), np.ascontiguousarray(su), np.ascontiguousarray(h))
-    _decide(np.ascontiguousarray(rings), planes, grid, todo, EPS, _order(h.shape[1]), state)
+    _decide(np.ascontiguousarray(rings), planes, grid, todo, EPS, direction_order(h.shape[1]),
+            state)
     out[state == 1] = True
     rest = np.flatnonzero(state == -1)
     if rest.size:

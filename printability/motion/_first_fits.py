@@ -17,16 +17,16 @@ import numba
 import numpy as np
 
 from printability.base.kernel_cache import guard as _guard_kernel_caches
-from printability.motion._covers import _clip, _edges_state
-from printability.motion._point_location import _locate
+from printability.motion._covers import clip_fraction, edges_state
+from printability.motion._point_location import locate
 from printability.motion._sweep import (
-    _deep_in_frame,
-    _directions,
-    _move_normal,
-    _offsets,
-    _piece,
-    _pose,
-    _sweep_frame,
+    candidate_pose,
+    deep_in_frame,
+    move_directions,
+    move_normal,
+    piece_offsets,
+    piece_tuple,
+    sweep_frame,
 )
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
@@ -59,7 +59,7 @@ def first_fits(pieces, moves, angles, groups, dirs, grid, loc, eps, out_idx,
     Candidate ``q`` sweeps the ``pieces`` (a :class:`~printability.motion.records.Pieces`)
     along segment ``groups.seg[q]`` of ``moves`` (or ``groups.gseg[g]`` for all the
     candidates of group ``g`` when ``gseg`` is non-empty: groups may then share
-    candidates; the normal of :func:`_move_normal`, the base directions of ``dirs``) at
+    candidates; the normal of :func:`move_normal`, the base directions of ``dirs``) at
     the orientation ``angles.c0[q]``, ``angles.s0[q]`` (turning to ``c1``, ``s1`` with
     factor ``k`` when ``angles.k`` is non-empty). Group ``g`` tries ``gpos[g] … gend[g] - 1``
     in order and stops at the first that fits (``out_state`` 1, ``out_idx`` its index), at
@@ -85,7 +85,7 @@ def first_fits(pieces, moves, angles, groups, dirs, grid, loc, eps, out_idx,
       finds such an edge (the piece lies in the footprint's box and cells).
       Without a turn they are first tested against the ellipses swept
       (:func:`_deep_in_recent`, before any half-plane is computed: most
-      candidates end there), then with :func:`_clip`; a segment's directions are found
+      candidates end there), then with :func:`clip_fraction`; a segment's directions are found
       only once one of its candidates gets past that test;
     * the point located is the segment's start where it lies in every
       footprint (pieces centred on the nozzle, not mirrored by a negative
@@ -132,9 +132,9 @@ def _groups(pieces, moves, angles, groups, dirs, grid, loc, eps, work, out):  # 
             if not turning and _deep_in_recent(pieces, moves, m, angles, q, grid, work):
                 continue
             if not directed:  # (found only now: the shortcut above ends most candidates)
-                cn, sn = _move_normal(p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1])
-                _directions(cn, sn, cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], work.cu,
-                            work.su, work.w)
+                cn, sn = move_normal(p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1])
+                move_directions(cn, sn, cb, sb, p0[m, 0], p0[m, 1], p1[m, 0], p1[m, 1], work.cu,
+                                work.su, work.w)
                 directed = True
             state = _candidate_state(pieces, moves, m, angles, q, dirs, grid, loc, eps, work,
                                      centred)
@@ -159,7 +159,7 @@ def _centred(pieces):  # pragma: no cover
 def _deep_in_recent(pieces, moves, m, angles, q, grid, work):  # pragma: no cover
     """Whether an edge that refused a recent footprint lies deep in the ellipse of a piece
     swept along segment ``m`` at candidate ``q``'s orientation (no turn): a refusal found
-    with no half-plane (:func:`_deep_in_frame`); the edge moves to the front."""
+    with no half-plane (:func:`deep_in_frame`); the edge moves to the front."""
     p0 = moves.p0
     p1 = moves.p1
     ex0, ey0, ex1, ey1 = grid.ex0, grid.ey0, grid.ex1, grid.ey1
@@ -173,15 +173,15 @@ def _deep_in_recent(pieces, moves, m, angles, q, grid, work):  # pragma: no cove
             continue
         sx = p1[m, 0] - p0[m, 0]
         sy = p1[m, 1] - p0[m, 1]
-        frame = _sweep_frame(sx, sy, _piece(pieces, p), angles.c0[q], angles.s0[q], sc)
+        frame = sweep_frame(sx, sy, piece_tuple(pieces, p), angles.c0[q], angles.s0[q], sc)
         for r in range(len(mru)):
             e = mru[r]
             if e < 0:
                 break
             if mru_len[r] < 1e-6:
                 continue
-            if _deep_in_frame(ex0[e] - p0[m, 0], ey0[e] - p0[m, 1], ex1[e] - p0[m, 0],
-                              ey1[e] - p0[m, 1], frame):
+            if deep_in_frame(ex0[e] - p0[m, 0], ey0[e] - p0[m, 1], ex1[e] - p0[m, 0],
+                             ey1[e] - p0[m, 1], frame):
                 _to_front(mru, mru_len, r, e, mru_len[r])
                 return True
     return False
@@ -194,8 +194,8 @@ def _candidate_state(pieces, moves, m, angles, q, dirs, grid, loc, eps, work,
     inside, -1 undecided (∂G grazes a piece and none pokes out), piece by piece."""
     state = 1
     for p in range(len(pieces.kind)):
-        _offsets(_piece(pieces, p), _pose(angles, q, moves.scale, m), work.cu, work.su, work.w,
-                 work.h)
+        piece_offsets(piece_tuple(pieces, p), candidate_pose(angles, q, moves.scale, m), work.cu,
+                      work.su, work.w, work.h)
         if _refused_by_recent(grid, eps, dirs.order, work):
             return 0
         st, vx, vy = _scan(grid, eps, dirs, work)
@@ -205,11 +205,11 @@ def _candidate_state(pieces, moves, m, angles, q, dirs, grid, loc, eps, work,
             if centred and not (len(moves.scale) > 0 and moves.scale[m] < 0.0):
                 # the segment's start lies in the footprint: located once per segment
                 if work.where[0] < 0:
-                    work.where[0] = 1 if _locate(moves.p0[m, 0], moves.p0[m, 1], grid,
-                                                 loc) else 0
+                    work.where[0] = 1 if locate(moves.p0[m, 0], moves.p0[m, 1], grid,
+                                                loc) else 0
                 inside = work.where[0] == 1
             else:
-                inside = _locate(vx, vy, grid, loc)
+                inside = locate(vx, vy, grid, loc)
             if not inside:
                 return 0
         if st == -1:
@@ -228,8 +228,8 @@ def _refused_by_recent(grid, eps, order, work):  # pragma: no cover
         e = mru[r]
         if e < 0:
             break
-        t = _clip(grid.ex0[e], grid.ey0[e], grid.ex1[e], grid.ey1[e], work.cu, work.su, work.h,
-                  -eps, order)
+        t = clip_fraction(grid.ex0[e], grid.ey0[e], grid.ex1[e], grid.ey1[e], work.cu, work.su,
+                          work.h, -eps, order)
         if t > 0.0 and t * mru_len[r] > eps:
             _to_front(mru, mru_len, r, e, mru_len[r])
             return True
@@ -239,7 +239,7 @@ def _refused_by_recent(grid, eps, order, work):  # pragma: no cover
 @numba.njit(cache=True, _nrt=False, inline="always")
 def _scan(grid, eps, dirs, work):  # pragma: no cover
     """The edge test of the footprint whose half-planes ``work`` holds, on the edges of ∂G
-    near its ring's box (:func:`_edges_state`): its state and the ring's first vertex. An
+    near its ring's box (:func:`edges_state`): its state and the ring's first vertex. An
     edge entering it moves to the front of the recent ones."""
     cu = work.cu
     su = work.su
@@ -264,7 +264,7 @@ def _scan(grid, eps, dirs, work):  # pragma: no cover
         my0 = min(my0, y)
         my1 = max(my1, y)
     box = (mx0 / det - eps, my0 / det - eps, mx1 / det + eps, my1 / det + eps)
-    st = _edges_state(cu, su, h, box, grid.cells, grid.packed, eps, dirs.order, work.found)
+    st = edges_state(cu, su, h, box, grid.cells, grid.packed, eps, dirs.order, work.found)
     if st == 0:
         e = work.found[0]
         _to_front(work.mru, work.mru_len, len(work.mru) - 1, e,

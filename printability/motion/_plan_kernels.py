@@ -115,7 +115,7 @@ def width_picks(w, wtab, beta, dist):  # pragma: no cover
 
 @numba.njit(cache=True)
 def split_intervals(length, step):  # pragma: no cover
-    """The candidate intervals of :func:`printability.motion._search._split_many`.
+    """The candidate intervals of :func:`printability.motion._search.split_many`.
 
     A move longer than ``2·step`` is trimmed by d = step/length, 2d, 4d… (while d < 1/2)
     at the start (``[d, 1]``), the end (``[0, 1 - d]``) or both (``[d, 1 - d]``), in that
@@ -188,7 +188,7 @@ def merge_pieces(move, t0, t1, angle):  # pragma: no cover
 
     Two pieces of a move are joined when the second starts where the first (as
     joined so far) ends and has its orientation, both up to ``math.isclose``:
-    the loop :func:`printability.motion._search._split_many` ran per move
+    the loop :func:`printability.motion._search.split_many` ran per move
     on lists of tuples, compiled. Returns the joined pieces' move, start, end
     and orientation.
     """

@@ -1,7 +1,7 @@
 """Whether a point of a footprint lies in G: the accept case of the fused kernel.
 
 Where no edge of ∂G comes within ``EPS`` of a footprint, one of its points, at
-least ~``EPS`` from ∂G, is located (:func:`_locate`): in the polygons of a bead
+least ~``EPS`` from ∂G, is located (:func:`locate`): in the polygons of a bead
 union when the target is one (:func:`locator` gives them and their beads; a
 bead's axis is tried first, :func:`_near_axis`), else by the parity of a ray's
 crossings of ∂G on the boundary grid (:func:`_inside`).
@@ -23,7 +23,7 @@ from printability.motion.records import Beads, CellGrid, HalfPlanes, Locator
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
-__all__ = ["_AXIS", "_locate", "_near_axis", "locator"]
+__all__ = ["_AXIS", "_near_axis", "locate", "locator"]
 
 
 @numba.njit(cache=True, _nrt=False)
@@ -113,7 +113,7 @@ def _near_axis(px, py, cells, beads):  # pragma: no cover
 
 
 @numba.njit(cache=True, _nrt=False)
-def _locate(px, py, grid, loc):  # pragma: no cover
+def locate(px, py, grid, loc):  # pragma: no cover
     """Whether a point at least ~``EPS`` from ∂G lies in G: in one of the polygons of a
     bead union when there are any (near a bead's axis first), else by the parity of ∂G's
     crossings (``grid`` the :class:`~printability.motion.records.BoundaryGrid`, ``loc``

@@ -1,9 +1,9 @@
 """The orientation searches of :mod:`printability.motion.orientation`: grid orientations in
 order of cost, and the split of the moves that fit whole at none.
 
-:func:`_search_ordered` tries each move's candidates (a grid of orientations, unwrapped
-near the previous move's) cheapest first (:func:`_cost_order`: the width error over the
-slack plus the turn over 30°); :func:`_split_many` keeps what fits of the moves that
+:func:`search_ordered` tries each move's candidates (a grid of orientations, unwrapped
+near the previous move's) cheapest first (:func:`cost_order`: the width error over the
+slack plus the turn over 30°); :func:`split_many` keeps what fits of the moves that
 fit nowhere: the longest middle at the exact-width orientations or the grid's two
 cheapest (:func:`_first_intervals`), then the rest searched whole and in pieces. Both
 decide every footprint with :mod:`printability.motion.footprints`; their shortcuts
@@ -22,7 +22,7 @@ from printability.motion import footprints as fp
 from printability.motion._plan_kernels import merge_pieces, points_along, split_intervals
 from printability.motion.plan import PlanContext
 
-__all__ = ["_cost_order", "_search_ordered", "_split_many", "_tried"]
+__all__ = ["cost_order", "search_ordered", "split_many", "tried_counts"]
 
 
 def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
@@ -36,7 +36,7 @@ def _cost_terms(direction, widths, prev, cands, beta, wtab, per):
     return near, werr, turn
 
 
-def _cost_order(direction, widths, prev, cands, beta, wtab, per, options):
+def cost_order(direction, widths, prev, cands, beta, wtab, per, options):
     """Per move, its candidates unwrapped near ``prev`` and their order of cost: the width
     error over ``width_slack`` plus the turn from ``prev`` over 30° (a 30° turn weighs as
     much as a width error of ``width_slack``)."""
@@ -45,10 +45,10 @@ def _cost_order(direction, widths, prev, cands, beta, wtab, per, options):
     return near, np.argsort(key, axis=1, kind="stable")
 
 
-def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None, fast=True, *,
-                    workers=1):
+def search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None, fast=True, *,
+                   workers=1):
     """Per move, the first of its candidates ``near`` that fits, in their ``order`` of cost
-    (at most ``limit`` per move, in rounds of 4, 4 and the rest: :func:`_tried`).
+    (at most ``limit`` per move, in rounds of 4, 4 and the rest: :func:`tried_counts`).
 
     Returns
     -------
@@ -61,7 +61,7 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
     if k == 0:
         return found, best
     ncand = near.shape[1]
-    count = _tried(np.full(k, ncand) if limit is None else np.asarray(limit), ncand)
+    count = tried_counts(np.full(k, ncand) if limit is None else np.asarray(limit), ncand)
     if fast and fp._fused(pieces):
         # the rounds only bounded the wasted tests: the first candidate that fits, in
         # order, is the one they find, and the kernel stops there
@@ -90,8 +90,8 @@ def _search_ordered(target, pieces, p0, p1, near, order, scale=None, limit=None,
     return found, best
 
 
-def _tried(limit: np.ndarray, ncand: int) -> np.ndarray:
-    """How many candidates :func:`_search_ordered` tries per move under ``limit``: the
+def tried_counts(limit: np.ndarray, ncand: int) -> np.ndarray:
+    """How many candidates :func:`search_ordered` tries per move under ``limit``: the
     cheapest first, in rounds of 4, 4 and the rest, a move taking part in the rounds that
     start below its limit (a move it finds nothing for was refused at all of them)."""
     count = np.zeros(len(limit), dtype=np.int64)
@@ -180,10 +180,10 @@ def _set_candidates(ivpos, mv, drop_last, lo, hi, ncol):
     return cand, np.cumsum(n_iv * (hi - lo))
 
 
-def _split_many(ctx: PlanContext, prev: np.ndarray, cands: np.ndarray, *, fast: bool = True,
-                ordered: tuple | None = None, tried: np.ndarray | None = None,
-                exact: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def split_many(ctx: PlanContext, prev: np.ndarray, cands: np.ndarray, *, fast: bool = True,
+               ordered: tuple | None = None, tried: np.ndarray | None = None,
+               exact: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Keep the parts of the moves of ``ctx`` that fit somewhere; drop the rest (all moves
     at once).
 
@@ -195,7 +195,7 @@ def _split_many(ctx: PlanContext, prev: np.ndarray, cands: np.ndarray, *, fast: 
     whole at every orientation and, where nothing fits, cut into pieces of
     twice ``ctx.step`` searched again, and what still fits nowhere halved once
     more (pieces down to ``ctx.step``). A few vectorised searches in all,
-    whatever the number of moves. ``ordered`` is :func:`_cost_order`'s answer for these
+    whatever the number of moves. ``ordered`` is :func:`cost_order`'s answer for these
     moves when already known (only where ``prev`` has no NaN: here a NaN counts as 0), and
     ``tried`` (with it) how many of each move's first candidates in that order the whole
     move was already refused at: a move nothing is kept of starts its search after them.
@@ -211,8 +211,8 @@ def _split_many(ctx: PlanContext, prev: np.ndarray, cands: np.ndarray, *, fast: 
     length = np.hypot(*ba.T)
     if ordered is None or np.isnan(prev).any():
         prev = np.where(np.isnan(prev), 0.0, prev)
-        near, order_all = _cost_order(ctx.direction, ctx.widths, prev, cands, ctx.beta,
-                                      ctx.wtab, ctx.per, ctx.options)
+        near, order_all = cost_order(ctx.direction, ctx.widths, prev, cands, ctx.beta,
+                                     ctx.wtab, ctx.per, ctx.options)
         tried = None  # another order: what was refused is not its first candidates
     else:
         near, order_all = ordered
@@ -271,9 +271,9 @@ def _split_many(ctx: PlanContext, prev: np.ndarray, cands: np.ndarray, *, fast: 
             found = first >= 0
             best = np.where(found, near_ord[first], np.nan)
         else:
-            found, best = _search_ordered(target, pieces, q0, q1, near[idx], order_all[idx],
-                                          None if scale is None else scale[idx], fast=fast,
-                                          workers=workers)
+            found, best = search_ordered(target, pieces, q0, q1, near[idx], order_all[idx],
+                                         None if scale is None else scale[idx], fast=fast,
+                                         workers=workers)
         found_l.append((idx[found], ta[found], tb[found], best[found]))
         # the rest, straight to pieces of 2·`step` (smaller pieces fit more easily), cut as
         # np.linspace(ra, rb, m + 1) cuts them; a part or piece of at most 2·`step` that

@@ -1,14 +1,14 @@
 """Half-planes and ring of an ellipse or rectangle swept along a move; its refusal shortcut.
 
 A swept footprint is the intersection of half-planes ``cu·x + su·y ≤ h`` in d
-directions turned with the move: :func:`_directions` gives the directions and
+directions turned with the move: :func:`move_directions` gives the directions and
 the move's extent along them (shared by the candidates of a move),
-:func:`_offsets` the offsets of one piece at one orientation, and
+:func:`piece_offsets` the offsets of one piece at one orientation, and
 :func:`swept_kernel` the ring (where adjacent boundary lines cross). The fused
 kernel of :mod:`printability.motion._first_fits` calls the same two functions,
 so its half-planes are those of the ring to the last bit.
 
-:func:`_deep_in_sweep` (:func:`_sweep_frame`, then :func:`_deep_in_frame` per
+:func:`_deep_in_sweep` (:func:`sweep_frame`, then :func:`deep_in_frame` per
 edge) is a sufficient test of refusal needing no half-plane, in the frame where
 the swept ellipse is the unit disk.
 
@@ -27,8 +27,17 @@ from printability.motion._kernels import segments2 as _segments2
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 
-__all__ = ["_deep_in_frame", "_deep_in_sweep", "_directions", "_move_normal", "_offsets",
-           "_piece", "_pose", "_sweep_frame", "swept_kernel"]
+__all__ = [
+    "_deep_in_sweep",
+    "candidate_pose",
+    "deep_in_frame",
+    "move_directions",
+    "move_normal",
+    "piece_offsets",
+    "piece_tuple",
+    "sweep_frame",
+    "swept_kernel",
+]
 
 
 _DEEP = 1e-3
@@ -38,7 +47,7 @@ _DEEP = 1e-3
 @numba.njit(cache=True)
 def _deep_in_sweep(e0, e1, s, piece, c, sn, sc):  # pragma: no cover
     """Whether the edge [e0, e1] (points relative to the move's start) has a piece well inside
-    the ellipse of ``piece`` (:func:`_piece`: its semi-axes, centre and rotation) at
+    the ellipse of ``piece`` (:func:`piece_tuple`: its semi-axes, centre and rotation) at
     orientation ``c``, ``sn`` scaled by ``sc`` swept from 0 to ``s``.
 
     In the frame where that ellipse is the unit disk the swept set is the set of points
@@ -47,13 +56,13 @@ def _deep_in_sweep(e0, e1, s, piece, c, sn, sc):  # pragma: no cover
     set, hence in every polygon around it, far beyond ``EPS``. A sufficient test of
     refusal, needing no half-plane: a rectangle holds the ellipse of its semi-axes.
     """
-    frame = _sweep_frame(s[0], s[1], piece, c, sn, sc)
-    return _deep_in_frame(e0[0], e0[1], e1[0], e1[1], frame)
+    frame = sweep_frame(s[0], s[1], piece, c, sn, sc)
+    return deep_in_frame(e0[0], e0[1], e1[0], e1[1], frame)
 
 
 @numba.njit(cache=True, _nrt=False)
-def _sweep_frame(sx, sy, piece, c, s, sc):  # pragma: no cover
-    """The frame of :func:`_deep_in_sweep` for ``piece`` (:func:`_piece`): its map ``M`` (row
+def sweep_frame(sx, sy, piece, c, s, sc):  # pragma: no cover
+    """The frame of :func:`_deep_in_sweep` for ``piece`` (:func:`piece_tuple`): its map ``M`` (row
     by row), the ellipse's centre ``q`` and the segment's end ``t`` in it (one per
     footprint, shared by the edges tried), as the tuple ``(m00, m01, m10, m11, qx, qy, tx,
     ty)``."""
@@ -71,8 +80,8 @@ def _sweep_frame(sx, sy, piece, c, s, sc):  # pragma: no cover
 
 
 @numba.njit(cache=True, _nrt=False)
-def _deep_in_frame(ex0, ey0, ex1, ey1, frame):  # pragma: no cover
-    """:func:`_deep_in_sweep` given its :func:`_sweep_frame`."""
+def deep_in_frame(ex0, ey0, ex1, ey1, frame):  # pragma: no cover
+    """:func:`_deep_in_sweep` given its :func:`sweep_frame`."""
     m00, m01, m10, m11, qx, qy, tx, ty = frame
     ax = m00 * ex0 + m01 * ey0
     ay = m10 * ex0 + m11 * ey0
@@ -83,7 +92,7 @@ def _deep_in_frame(ex0, ey0, ex1, ey1, frame):  # pragma: no cover
 
 
 @numba.njit(cache=True, _nrt=False)
-def _move_normal(p0x, p0y, p1x, p1y):  # pragma: no cover
+def move_normal(p0x, p0y, p1x, p1y):  # pragma: no cover
     """The unit normal (cos, sin) of the move ``p0 → p1``, its direction turned by +90°
     ((1, 0) for a move of no length): :func:`printability.motion.footprints._move_normals`
     for one move, the same arithmetic (so the same bits: a square root and two divisions,
@@ -97,7 +106,7 @@ def _move_normal(p0x, p0y, p1x, p1y):  # pragma: no cover
 
 
 @numba.njit(cache=True, _nrt=False)
-def _directions(cn, sn, cb, sb, p0x, p0y, p1x, p1y, cu, su, w):  # pragma: no cover
+def move_directions(cn, sn, cb, sb, p0x, p0y, p1x, p1y, cu, su, w):  # pragma: no cover
     """Directions ``cu``, ``su`` of a move's half-planes and the move's extent ``w`` along them.
 
     Independent of the orientation: the candidates of one move share them.
@@ -111,10 +120,10 @@ def _directions(cn, sn, cb, sb, p0x, p0y, p1x, p1y, cu, su, w):  # pragma: no co
 
 
 @numba.njit(cache=True, _nrt=False)
-def _offsets(piece, pose, cu, su, w, h):  # pragma: no cover
-    """Offsets ``h`` of the half-planes of ``piece`` (:func:`_piece`: an ellipse, kind 0, or a
-    rectangle, 1) swept at the :func:`_pose` ``pose``, given the directions ``cu``, ``su``
-    and the move's extent ``w`` along them (:func:`_directions`).
+def piece_offsets(piece, pose, cu, su, w, h):  # pragma: no cover
+    """Offsets ``h`` of the half-planes of ``piece`` (:func:`piece_tuple`: an ellipse, kind 0, or a
+    rectangle, 1) swept at the :func:`candidate_pose` ``pose``, given the directions ``cu``, ``su``
+    and the move's extent ``w`` along them (:func:`move_directions`).
 
     The swept_kernel's arithmetic, shared with the fused tests so that their
     half-planes are those of the ring, to the last bit.
@@ -146,19 +155,19 @@ def _offsets(piece, pose, cu, su, w, h):  # pragma: no cover
 
 
 @numba.njit(cache=True, _nrt=False, inline="always")
-def _piece(pieces, p):  # pragma: no cover
+def piece_tuple(pieces, p):  # pragma: no cover
     """Piece ``p`` of ``pieces`` (a :class:`~printability.motion.records.Pieces`) as the
-    tuple ``(kind, a, b, cx, cy, rc, rs)`` of :func:`_offsets` and :func:`_sweep_frame`
+    tuple ``(kind, a, b, cx, cy, rc, rs)`` of :func:`piece_offsets` and :func:`sweep_frame`
     (:func:`printability.motion.footprints._piece_params`'s)."""
     return (pieces.kind[p], pieces.a[p], pieces.b[p], pieces.cx[p], pieces.cy[p],
             pieces.rc[p], pieces.rs[p])
 
 
 @numba.njit(cache=True, _nrt=False, inline="always")
-def _pose(angles, q, scale, m):  # pragma: no cover
+def candidate_pose(angles, q, scale, m):  # pragma: no cover
     """The orientation of candidate ``q`` of ``angles`` (an
     :class:`~printability.motion.records.Angles`) and the scale of segment ``m``
-    (``scale`` empty: 1), as :func:`_offsets` reads them: ``(c0, s0, c1, s1, k, turning,
+    (``scale`` empty: 1), as :func:`piece_offsets` reads them: ``(c0, s0, c1, s1, k, turning,
     scale, scaled)``."""
     turning = len(angles.k) > 0
     scaled = len(scale) > 0
@@ -170,7 +179,7 @@ def _pose(angles, q, scale, m):  # pragma: no cover
 @numba.njit(cache=True)
 def swept_kernel(piece, moves, normals, dirs, angles, planes, ring):  # pragma: no cover
     """Half-plane offsets and ring of ``piece`` (``(kind, a, b, cx, cy, rc, rs)``: an
-    ellipse, kind 0, or a rectangle, 1, :func:`_piece`) swept along each of ``moves`` at
+    ellipse, kind 0, or a rectangle, 1, :func:`piece_tuple`) swept along each of ``moves`` at
     ``angles`` (row i at row i).
 
     The same arithmetic, in the same order, as the numpy path of
@@ -190,9 +199,9 @@ def swept_kernel(piece, moves, normals, dirs, angles, planes, ring):  # pragma: 
     n, d = cu.shape
     w = np.empty(d)
     for i in range(n):
-        _directions(cn[i], sn[i], dirs.cb, dirs.sb, p0[i, 0], p0[i, 1], p1[i, 0], p1[i, 1],
-                    cu[i], su[i], w)
-        _offsets(piece, _pose(angles, i, moves.scale, i), cu[i], su[i], w, h[i])
+        move_directions(cn[i], sn[i], dirs.cb, dirs.sb, p0[i, 0], p0[i, 1], p1[i, 0], p1[i, 1],
+                        cu[i], su[i], w)
+        piece_offsets(piece, candidate_pose(angles, i, moves.scale, i), cu[i], su[i], w, h[i])
         for j in range(d):
             jn = j + 1 if j + 1 < d else 0
             ring[i, j, 0] = (h[i, j] * su[i, jn] - h[i, jn] * su[i, j]) / det

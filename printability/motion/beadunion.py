@@ -78,8 +78,8 @@ import shapely
 from printability._parallel import shared_out
 from printability.base.kernel_cache import guard as _guard_kernel_caches
 from printability.errors import InputError
-from printability.motion._bead_boundary import _boundary, _green
-from printability.motion._bead_polygons import _grid, _polygons
+from printability.motion._bead_boundary import boundary_pieces, green_area
+from printability.motion._bead_polygons import bead_polygons, cell_grid
 from printability.motion._kernels import cell_of as _cell
 from printability.motion.records import BeadPolygons, Beads, CellGrid, HalfPlanes
 
@@ -229,18 +229,18 @@ def bead_union(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, *, grow: floa
                          CellGrid(np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1.0,
                                   1, 1),
                          z, z, z, z, z, 0.0, 0.0)
-    off, ux, uy, h, vx, vy, box, k, phase = _polygons(ax, ay, bx, by, rho, rmax)
-    grid = _grid(box)
+    off, ux, uy, h, vx, vy, box, k, phase = bead_polygons(ax, ay, bx, by, rho, rmax)
+    grid = cell_grid(box)
     beads = Beads(ax, ay, bx, by, rho)
     polys = BeadPolygons(HalfPlanes(off, ux, uy, h), vx, vy, box, k, phase)
     parts: dict[int, np.ndarray] = {}
 
     def run(part: slice) -> None:
-        parts[part.start] = _boundary(beads, polys, grid, _EPS, part.start, part.stop)
+        parts[part.start] = boundary_pieces(beads, polys, grid, _EPS, part.start, part.stop)
 
     shared_out(run, np.ones(len(ax)), workers, min_items=_PARALLEL_MIN)
     edges = parts[0] if len(parts) == 1 else np.concatenate([parts[p] for p in sorted(parts)])
-    area = _green(edges, grid[2], grid[3])
+    area = green_area(edges, grid[2], grid[3])
     ex0, ey0, ex1, ey1, beyond = (np.ascontiguousarray(edges[:, c]) for c in range(5))
     return BeadUnion(ax, ay, bx, by, rho, off, ux, uy, h, vx, vy, box, k, phase, grid,
                      ex0, ey0, ex1, ey1, beyond, abs(float(area)),

@@ -13,7 +13,8 @@ re-exported here (import from this module):
 * :mod:`printability.motion._boundary_grid` — ∂G's edges binned on a uniform
   grid, built once per layer target (:func:`boundary_grid`);
 * :mod:`printability.motion._covers` — the edge tests and why their decisions
-  are those of ``shapely.covers`` (:data:`EPS`), applied to given rings
+  are those of ``shapely.covers`` (:data:`EPS`) and the order they visit the
+  directions in (:func:`direction_order`), applied to given rings
   (:func:`covers_rings`), and the shapely answers for a shapely target or a
   bead union (:func:`contains_xy`, :func:`covers`);
 * :mod:`printability.motion._point_location` — whether a point lies in G
@@ -37,11 +38,17 @@ read and write arrays they are given: they are compiled without the runtime
 from __future__ import annotations
 
 from printability.motion._boundary_grid import boundary_grid
-from printability.motion._covers import EPS, contains_xy, covers, covers_rings
-from printability.motion._covers import _order as _order
+from printability.motion._covers import (
+    EPS,
+    contains_xy,
+    covers,
+    covers_rings,
+    direction_order,
+)
 from printability.motion._first_fits import first_fits
 from printability.motion._point_location import locator
 from printability.motion._sweep import swept_kernel
 
-__all__ = ["EPS", "boundary_grid", "contains_xy", "covers", "covers_rings", "first_fits",
-           "locator", "swept_kernel"]
+__all__ = ["EPS", "boundary_grid", "contains_xy", "covers", "covers_rings", "direction_order",
+           "first_fits", "locator", "swept_kernel"]
+

@@ -29,10 +29,10 @@ from printability._parallel import shared_out
 from printability.errors import InputError
 from printability.motion.fastfit import (
     EPS,
-    _order,
     boundary_grid,
     covers,
     covers_rings,
+    direction_order,
     first_fits,
     locator,
     swept_kernel,
@@ -157,7 +157,7 @@ def _swept(piece, p0, p1, angle, *, angle_end=None, scale=None, directions=64,
         moves = Moves(np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
                       sc)
         cb, sb, _ = _base_directions(directions)
-        dirs = Directions(cb, sb, det, _order(directions))
+        dirs = Directions(cb, sb, det, direction_order(directions))
         swept_kernel(_piece_params(piece), moves, (normal_c, normal_s), dirs,
                      Angles(c0, s0, c1, s1, k), (cu, su, h), ring)
         return ring, cu, su, h
@@ -349,7 +349,7 @@ def _kernel_inputs(segments, angle, angle_end, trig) -> tuple[Moves, Angles, Dir
     sc = _EMPTY if scale is None else np.ascontiguousarray(
         np.broadcast_to(np.asarray(scale, dtype=float), (len(p0),)))
     return (Moves(p0, p1, sc), Angles(c0, s0, c1, s1, k),
-            Directions(cb, sb, det, _order(_DIRECTIONS)))
+            Directions(cb, sb, det, direction_order(_DIRECTIONS)))
 
 
 def _grazed_fit(target, pieces, fixed, q, m) -> np.ndarray:

@@ -61,8 +61,8 @@ from printability.motion._passes import (
     reachable,
     smooth,
 )
-from printability.motion._plan_kernels import chain_nearest, width_picks
-from printability.motion._search import _cost_order, _search_ordered, _split_many, _tried
+from printability.motion._plan_kernels import chain_nearest, piece_losses, width_picks
+from printability.motion._search import cost_order, search_ordered, split_many, tried_counts
 from printability.motion.footprints import (
     convex_pieces,
     fits,
@@ -82,6 +82,7 @@ __all__ = [
     "candidate_orientations",
     "convex_pieces",
     "fits",
+    "piece_losses",
     "piece_rows_of",
     "plan_context",
     "plan_orientations",
@@ -448,19 +449,19 @@ def _search_refused(ctx: PlanContext, angle: np.ndarray, picks: tuple, bad: np.n
     long_move = np.hypot(*(sub.p1 - sub.p0).T) > 4 * ctx.step
     # the candidates in order of cost, once for the search and the split (a move's
     # row depends on its direction, width and previous orientation only)
-    near, order = _cost_order(sub.direction, sub.widths, prev_mv, cands, ctx.beta, ctx.wtab,
-                              ctx.per, ctx.options)
+    near, order = cost_order(sub.direction, sub.widths, prev_mv, cands, ctx.beta, ctx.wtab,
+                             ctx.per, ctx.options)
     limit = np.where(long_move, 8, len(cands))
-    found, best = _search_ordered(ctx.target, ctx.pieces, sub.p0, sub.p1, near, order,
-                                  sub.scale, limit=limit, workers=ctx.workers)
+    found, best = search_ordered(ctx.target, ctx.pieces, sub.p0, sub.p1, near, order,
+                                 sub.scale, limit=limit, workers=ctx.workers)
     angle[mv[found]] = best[found]
     rest = np.flatnonzero(~found)
     if rest.size == 0:
         return (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)), {}
-    pm, pa, pb, pp = _split_many(sub.take(rest), prev_mv[rest], cands,
-                                 ordered=(take_rows(near, rest), take_rows(order, rest)),
-                                 tried=_tried(limit[rest], len(cands)),
-                                 exact=None if exact is None else exact[rest])
+    pm, pa, pb, pp = split_many(sub.take(rest), prev_mv[rest], cands,
+                                ordered=(take_rows(near, rest), take_rows(order, rest)),
+                                tried=tried_counts(limit[rest], len(cands)),
+                                exact=None if exact is None else exact[rest])
     rows = (mv[rest][pm], pa, pb, pp)
     if turns:
         rows = drop_side_pieces(ctx, align_pieces(ctx, rows))

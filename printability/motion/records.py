@@ -126,7 +126,7 @@ class Angles(NamedTuple):
 class Directions(NamedTuple):
     """The base directions of a footprint's half-planes (cos ``cb``, sin ``sb``, before they
     are turned with the move), the sine ``det`` of the angle between neighbours, and the
-    ``order`` the edge tests visit them in (:func:`printability.motion._covers._order`)."""
+    ``order`` the edge tests visit them in (:func:`printability.motion._covers.direction_order`)."""
 
     cb: np.ndarray
     sb: np.ndarray

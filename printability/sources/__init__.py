@@ -24,6 +24,8 @@ are those of the same G-code as text.
 Planar sources give one layer at z = 0 of height 0 (:attr:`LayerStack.is_planar`).
 All coordinates come out in mm; what each reader assumed (units, background
 shapes, projection...) is listed in ``LayerStack.meta["warnings"]``.
+Every reader refuses coordinates that are not finite or beyond :data:`MAX_COORDINATE`
+(:func:`check_coordinates`, which nozzle outline files go through too).
 """
 
 from __future__ import annotations
@@ -37,9 +39,9 @@ from printability.errors import FileFormatError, InputError, PrintabilityOSError
 from printability.layers import LayerStack
 from printability.options import SOURCE_FORMATS
 from printability.settings import DEFAULT_SETTINGS, Settings
-from printability.sources._common import option_name
+from printability.sources._common import MAX_COORDINATE, check_coordinates, option_name
 
-__all__ = ["EXTENSIONS", "detect_format", "load_layers"]
+__all__ = ["EXTENSIONS", "MAX_COORDINATE", "check_coordinates", "detect_format", "load_layers"]
 
 EXTENSIONS: dict[str, str] = {
     ".gcode": "gcode", ".gco": "gcode", ".g": "gcode", ".bgcode": "gcode",

@@ -24,7 +24,7 @@ from printability.errors import (
     ResourceError,
     excerpt,
 )
-from printability.geometry import as_region, polygons_of
+from printability.geometry import MAX_COORDINATE, as_region, check_coordinates, polygons_of
 from printability.layers import Layer, LayerStack
 from printability.options import UNITS
 
@@ -148,24 +148,6 @@ def read_bytes(path: Path, *, factor: float, limit: int, what: str) -> bytes:
         return path.read_bytes()
     except OSError as exc:
         raise PrintabilityOSError(f"{path}: cannot read ({exc.strerror or exc})") from None
-
-
-#: Largest coordinate a drawing or map may hold (in its own units): beyond, areas and buffers
-#: lose every digit (1e308 overflows them); no part or map comes near it.
-MAX_COORDINATE = 1e15
-
-
-def check_coordinates(path: object, coords: np.ndarray, *, element: str | None = None) -> None:
-    """Refuse coordinates that are not finite or beyond :data:`MAX_COORDINATE`."""
-    from printability.errors import FileFormatError
-
-    a = np.asarray(coords, dtype=float)
-    bad = ~(np.abs(a) <= MAX_COORDINATE)
-    if bad.any():
-        v = a[bad].flat[0]
-        what = "out of range" if np.isfinite(v) else "not finite"
-        raise FileFormatError(path, f"a coordinate is {what} ({v:g}); expected finite numbers "
-                              f"up to {MAX_COORDINATE:g}", element=element)
 
 
 def apply_fit(geom: Any, fit: float | None) -> tuple[Any, float]:

@@ -33,7 +33,7 @@ from printability.mmc import _band, compute_mmc
 from printability.mmc._band_geometry import poly_dist
 from printability.mmc._band_lower import min_support
 from printability.mmc._band_slides import blocked_interval
-from printability.mmc._raster_prepare import _rings, prepare_raster
+from printability.mmc._raster_prepare import oriented_rings, prepare_raster
 from printability.mmc.raster import mmc_raster
 from printability.mmc.result import MMCInternalError
 from printability.nozzle import parse_nozzle
@@ -143,7 +143,7 @@ def _pieces(g, spec, machine, h=0.05):
     f = noz.footprints[0]
     lmats = [rotation_matrix(noz.mount_angle + float(p) + f.rotation) @ np.diag([f.a, f.b])
              for p in prob.angles]
-    edges, prev_, _ = _band.edges_of(*_rings(g))
+    edges, prev_, _ = _band.edges_of(*oriented_rings(g))
     ptr, idx = _band.neighbour_pairs(edges, 2.02 * max(f.a, f.b))
     return g, lmats, _band.band_pieces(g, edges, prev_, ptr, idx, lmats, prob.grid, prob.cls)
 

@@ -17,7 +17,7 @@ from printability.geometry import Grid, as_region
 from printability.machine import parse_machine
 from printability.mmc import _raster_kernels as rk
 from printability.mmc import compute_mmc
-from printability.mmc._raster_passes import _mask_runs, _opening_pass
+from printability.mmc._raster_passes import _mask_runs, opening_pass
 from printability.mmc._raster_runs import extract_runs, label_runs
 from printability.mmc.raster import (
     _erode3,
@@ -308,8 +308,8 @@ def test_word_morphology_matches_scipy():
     kern[3:10, 1:12] = True
     kern[radius, radius] = True
     kern[0, radius + 2] = True  # an asymmetric kernel with a stray pixel
-    res = _opening_pass(rk.pack_bits(img), rk.pack_bits(np.ones_like(img)), kern[None],
-                        kern[None], radius, img.shape[1], store=True, tick=lambda: None)
+    res = opening_pass(rk.pack_bits(img), rk.pack_bits(np.ones_like(img)), kern[None],
+                       kern[None], radius, img.shape[1], store=True, tick=lambda: None)
     # erosion without reflection: P(c) = ∧_d X(c + d) is scipy's correlation with the
     # reflected structure; padding counts as False
     ref_p = ndimage.binary_erosion(np.pad(img, radius), kern[::-1, ::-1], border_value=0)
@@ -360,10 +360,10 @@ def test_property_opening_is_idempotent_on_the_raster(rs, d):
     prob = prepare_raster(g, noz, parse_machine("ttr:step=45"), settings=Settings(resolution=0.05))
     nx = prob.grid.nx
     x = rk.pack_bits(prob.cls >= 2)
-    once = _opening_pass(x, x, prob.centre, prob.centre, prob.radius, nx, store=False,
+    once = opening_pass(x, x, prob.centre, prob.centre, prob.radius, nx, store=False,
+                        tick=lambda: None).union
+    twice = opening_pass(once, once, prob.centre, prob.centre, prob.radius, nx, store=False,
                          tick=lambda: None).union
-    twice = _opening_pass(once, once, prob.centre, prob.centre, prob.radius, nx, store=False,
-                          tick=lambda: None).union
     assert np.array_equal(once, twice)
 
 

@@ -192,7 +192,7 @@ def _random_polygons(rng, n, *, lengths, radii, tau):
     """n bead polygons on random segments (lengths drawn from ``lengths``, radii uniform
     in ``radii``): the beads, their polygons and corner cosines."""
     from printability.motion._bead_boundary import _corner_cosines
-    from printability.motion._bead_polygons import _polygons
+    from printability.motion._bead_polygons import bead_polygons
     from printability.motion.beadunion import INNER
     from printability.motion.records import BeadPolygons, Beads, HalfPlanes
 
@@ -202,7 +202,7 @@ def _random_polygons(rng, n, *, lengths, radii, tau):
     bx, by = ax + length * np.cos(ang), ay + length * np.sin(ang)
     r = rng.uniform(*radii, n)
     rho, rmax = r + SIDE * tau, r * INNER + tau
-    off, ux, uy, h, vx, vy, box, k, phase = _polygons(ax, ay, bx, by, rho, rmax)
+    off, ux, uy, h, vx, vy, box, k, phase = bead_polygons(ax, ay, bx, by, rho, rmax)
     return (Beads(ax, ay, bx, by, rho),
             BeadPolygons(HalfPlanes(off, ux, uy, h), vx, vy, box, k, phase), _corner_cosines(k))
 

@@ -158,10 +158,10 @@ def test_move_normals_are_the_left_unit_normals():
 
 
 def test_the_kernel_normal_is_the_numpy_normal_to_the_bit():
-    """The fused kernel finds each move's normal itself (:func:`_move_normal`); the rings of
+    """The fused kernel finds each move's normal itself (:func:`move_normal`); the rings of
     the grazing footprints take them from :func:`_move_normals`: the half-planes of both
     must be the same bits, zero-length and slicer-rounded moves included."""
-    from printability.motion._sweep import _move_normal
+    from printability.motion._sweep import move_normal
     from printability.motion.footprints import _move_normals
 
     rng = np.random.default_rng(11)
@@ -170,7 +170,7 @@ def test_the_kernel_normal_is_the_numpy_normal_to_the_bit():
     q0[::7] = q0[::7].round(3)
     q1[::7] = q1[::7].round(3)
     cn, sn = _move_normals(q0, q1)
-    mine = np.array([_move_normal(a, b, c, d) for (a, b), (c, d) in zip(q0, q1, strict=True)])
+    mine = np.array([move_normal(a, b, c, d) for (a, b), (c, d) in zip(q0, q1, strict=True)])
     assert np.array_equal(mine[:, 0], cn) and np.array_equal(mine[:, 1], sn)
     assert (mine[(q0 == q1).all(axis=1)] == [1.0, 0.0]).all()
 

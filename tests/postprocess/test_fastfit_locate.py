@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from printability.motion._point_location import _AXIS, _locate, _near_axis
+from printability.motion._point_location import _AXIS, _near_axis, locate
 from printability.motion.beadunion import bead_union, in_polygons
 from printability.motion.fastfit import boundary_grid, locator
 
@@ -47,7 +47,7 @@ def test_near_axis_is_a_shortcut_of_the_polygon_test(seed):
         poly = in_polygons(px[k], py[k], loc.polygons, loc.cells)
         fast = _near_axis(px[k], py[k], loc.cells, loc.beads)
         assert not fast or poly, k
-        assert _locate(px[k], py[k], grid, loc) == poly, k
+        assert locate(px[k], py[k], grid, loc) == poly, k
         if k < 2000 or (k < 6000 and dist[k] < rho[i[k]] - 2 * _AXIS):
             assert fast, k
         near += fast

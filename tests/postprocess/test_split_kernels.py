@@ -1,4 +1,4 @@
-"""Compiled helpers of the split search (printability.motion._search._split_many)
+"""Compiled helpers of the split search (printability.motion._search.split_many)
 against the numpy code they replaced: the same intervals, in the same order, to the bit."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from printability.motion._plan_kernels import points_along, split_intervals
 
 
 def _intervals_numpy(length, step, ncol):
-    """The candidate intervals as _split_many generated them with numpy."""
+    """The candidate intervals as split_many generated them with numpy."""
     mv_l, t0_l, t1_l, rank_l = [], [], [], []
     live = np.flatnonzero(length > 2 * step)
     d = step / length[live]

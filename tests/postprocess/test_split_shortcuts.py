@@ -1,4 +1,4 @@
-"""The split search's shortcuts change no answer (printability.motion._search._split_many).
+"""The split search's shortcuts change no answer (printability.motion._search.split_many).
 
 The fused split tries a move's innermost interval first (where it fits nowhere, no interval
 of the move fits) and starts a whole move's search after the candidates the move was
@@ -20,7 +20,7 @@ from printability.postprocess import PostprocessOptions, postprocess_bytes
 @pytest.mark.parametrize("fixture", ["prusa_short", "benchy_short"])
 def test_split_shortcuts_keep_the_exhaustive_pieces(request, monkeypatch, fixture, nozzle):
     data = request.getfixturevalue(fixture).read_bytes()
-    split_many = orientation._split_many
+    split_many = orientation.split_many
     seen = {"calls": 0, "skipped": 0, "pieces": 0}
 
     def checked(*args, **kw):
@@ -33,7 +33,7 @@ def test_split_shortcuts_keep_the_exhaustive_pieces(request, monkeypatch, fixtur
         seen["pieces"] += len(rows[0])
         return rows
 
-    monkeypatch.setattr(orientation, "_split_many", checked)
+    monkeypatch.setattr(orientation, "split_many", checked)
     postprocess_bytes(data, options=PostprocessOptions(nozzle=nozzle, machine="ttr"))
     # the shortcuts were taken: moves were split, some after candidates already refused
     assert seen["calls"] > 0 and seen["pieces"] > 0 and seen["skipped"] > 0
@@ -106,7 +106,7 @@ def test_what_fits_nowhere_at_twice_the_split_length_is_halved():
         assert kept and all((p.t1 - p.t0) * leg <= step * 1.000001 for p in kept)
     ctx = orientation.plan_context(p0, p1, np.full(2, w), target, noz, machine,
                                    prepared_target=target)
-    rows = orientation._split_many(ctx, np.zeros(2),
-                                   orientation.candidate_orientations(machine, noz, step=10.0),
-                                   fast=False)
+    rows = orientation.split_many(ctx, np.zeros(2),
+                                  orientation.candidate_orientations(machine, noz, step=10.0),
+                                  fast=False)
     assert set(rows[0].tolist()) == {0, 1}
