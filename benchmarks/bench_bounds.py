@@ -36,10 +36,10 @@ sys.path.insert(0, str(ROOT / "tests" / "mmc"))
 
 from shapes import ellipse_opening_loss, star  # noqa: E402
 
-from printability.geometry import as_region  # noqa: E402
-from printability.machine import parse_machine  # noqa: E402
 from printability.mmc.raster import mmc_raster  # noqa: E402
-from printability.nozzle import parse_nozzle  # noqa: E402
+from printability.model.geometry import as_region  # noqa: E402
+from printability.model.machine import parse_machine  # noqa: E402
+from printability.model.nozzle import parse_nozzle  # noqa: E402
 from printability.settings import Settings  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"

@@ -31,9 +31,9 @@ import shapely
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "mmc"))
 from shapes import SHARED_DATA, load_coastline, load_slice
 
-from printability.machine import parse_machine
 from printability.mmc.exact import mmc_exact
-from printability.nozzle import parse_nozzle
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 SLICES = (

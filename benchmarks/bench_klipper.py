@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 from gcode import parse_gcode  # noqa: E402
 from gcode.printtime import estimate_print_time  # noqa: E402
 from printability.generate import generate_file  # noqa: E402
-from printability.machine import parse_machine  # noqa: E402
+from printability.model.machine import parse_machine  # noqa: E402
 from printability.postprocess import PostprocessOptions, postprocess_bytes  # noqa: E402
 from simulators.klipper_batch import (  # noqa: E402
     START_END_MACROS,

@@ -38,12 +38,12 @@ import shapely
 from shapely import affinity
 from shapely.geometry import shape
 
-from printability.geometry import as_region
-from printability.machine import parse_machine
 from printability.mmc import _raster_kernels as rk
 from printability.mmc._raster_passes import opening_pass
 from printability.mmc.raster import _erode3, mmc_raster, prepare_raster
-from printability.nozzle import parse_nozzle
+from printability.model.geometry import as_region
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[1]

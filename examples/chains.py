@@ -28,8 +28,8 @@ from dataclasses import replace
 import shapely.affinity
 from shapely.geometry import box
 
-from printability.machine import parse_machine
 from printability.mmc import compute_mmc
+from printability.model.machine import parse_machine
 from printability.settings import Settings
 
 NOZZLES = ("circle:d=0.4", "ellipse:major=0.8,minor=0.3")
@@ -85,7 +85,7 @@ def _plot(g, results, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from printability.geometry import polygons_of
+    from printability.model.geometry import polygons_of
 
     labels = sorted({k[0] for k in results}, key=["xy", "ttr", "polar", "scara"].index)
     fig, axes = plt.subplots(len(NOZZLES), len(labels), figsize=(3.2 * len(labels), 6.4))

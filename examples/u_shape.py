@@ -22,8 +22,8 @@ import math
 
 from shapely.geometry import box
 
+from printability.analysis.ranking import rank
 from printability.mmc import compute_mmc
-from printability.ranking import rank
 from printability.settings import Settings
 
 

@@ -24,7 +24,7 @@ When ``printability serve`` is running, the run is handed to it (same output
 file, same messages, same exit code) and this process costs Python's start and
 a socket round trip instead of the libraries' start; otherwise, or if the
 server declines or breaks off, it runs here (see
-:mod:`printability.server_client`).
+:mod:`printability.app.server_client`).
 """
 
 from __future__ import annotations
@@ -72,12 +72,12 @@ def main(argv: list[str] | None = None) -> int:
         print(textwrap.fill(missing_file_message(path), width=100, break_on_hyphens=False,
                             break_long_words=False), file=sys.stderr)
         return 1
-    from printability.server_client import run_served
+    from printability.app.server_client import run_served
 
     rc = run_served(args)
     if rc is not None:
         return rc
-    from printability.cli.main import run  # here, without asking the server again
+    from printability.app.cli.main import run  # here, without asking the server again
 
     return run(args)
 

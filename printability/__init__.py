@@ -3,7 +3,7 @@
 The library's entry points:
 
 - :func:`printability.mmc.compute_mmc` — P, S and the lost area of one layer;
-- :func:`printability.nozzle.parse_nozzle`, :func:`printability.machine.parse_machine`;
+- :func:`printability.model.nozzle.parse_nozzle`, :func:`printability.model.machine.parse_machine`;
 - :class:`printability.settings.Settings` — tolerances travel in this frozen object.
 """
 

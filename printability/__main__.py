@@ -1,5 +1,5 @@
 import sys
 
-from printability.cli.main import main
+from printability.app.cli.main import main
 
 sys.exit(main())

@@ -14,9 +14,9 @@ from typing import Any
 
 from printability.base.errors import InputError
 from printability.base.options import SIM_CLOCKS
-from printability.layers import LayerStack
-from printability.machine import Machine, builtin_profiles, load_machine_file, parse_machine
-from printability.nozzle import Nozzle, parse_nozzle
+from printability.model.layers import LayerStack
+from printability.model.machine import Machine, builtin_profiles, load_machine_file, parse_machine
+from printability.model.nozzle import Nozzle, parse_nozzle
 from simulators.faults import FaultPlan
 from simulators.profiles import FirmwareProfile, KlipperProfile, firmware_profile
 
@@ -93,7 +93,7 @@ def make_config(*, profile: str = "marlin", machine: str | Machine = "ttr",
     profile
         Firmware profile name.
     machine, nozzle
-        SPECs (see :func:`printability.machine.parse_machine`, :func:`parse_nozzle`).
+        SPECs (see :func:`printability.model.machine.parse_machine`, :func:`parse_nozzle`).
     faults
         A fault spec (see :func:`simulators.faults.parse_faults`) or a plan.
     seed

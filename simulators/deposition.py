@@ -29,9 +29,9 @@ from shapely.strtree import STRtree
 
 from printability.base.errors import PrintabilityOSError
 from printability.base.files import replace_file
-from printability.geometry import polygons_of
-from printability.layers import LayerStack
-from printability.nozzle import Nozzle
+from printability.model.geometry import polygons_of
+from printability.model.layers import LayerStack
+from printability.model.nozzle import Nozzle
 
 __all__ = ["Deposition", "DepositionRecord", "LayerRecord", "Violation", "write_record"]
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from printability.machine import Machine
+from printability.model.machine import Machine
 from simulators.config import FirmwareProfile
 from simulators.parsing import Command
 

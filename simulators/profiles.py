@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from printability.base.errors import InputError
 from printability.base.options import ENDSTOP_POLICIES, FIRMWARE_PROFILES
-from printability.machine import Machine
+from printability.model.machine import Machine
 
 if TYPE_CHECKING:
     from simulators.commands import Heater

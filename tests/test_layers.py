@@ -1,8 +1,9 @@
 """Layers that import one way (issue #25): the import-linter contracts in pyproject.toml hold.
 
 printability.base is the leaf; gcode uses only printability.base of printability; machine_io
-uses gcode and printability.base; simulators use those and the model (geometry, layers, machine,
-nozzle); only the applications (the CLI, the demo) import machine_io and simulators.
+uses gcode and printability.base; simulators use those and the model (printability.model:
+geometry, layers, machine, nozzle, shapes); only the applications (printability.app: the CLI,
+the demo) import machine_io and simulators.
 ``lint-imports`` reads the contracts from pyproject.toml.
 """
 
@@ -64,10 +65,9 @@ def test_the_forbidden_lists_name_every_printability_module_but_base():
         assert "printability.base" not in listed
 
 
-MODEL = {"printability.geometry", "printability.layers", "printability.machine",
-         "printability.nozzle", "printability.errors", "printability.options",
-         "printability.settings", "printability.shapes", "printability.sources"}
-APPLICATIONS = {"printability.__main__", "printability.cli", "printability.demo"}
+MODEL = {"printability.model", "printability.errors", "printability.options",
+         "printability.settings", "printability.sources"}
+APPLICATIONS = {"printability.__main__", "printability.app"}
 
 
 def test_simulators_and_the_host_contracts_cover_every_module():

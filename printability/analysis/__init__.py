@@ -1,8 +1,8 @@
 """Analyse a sliced part for several nozzles on one machine: per layer, per nozzle.
 
 :func:`analyze` runs :func:`printability.mmc.compute_mmc` on every layer of a
-:class:`~printability.layers.LayerStack` for every candidate nozzle, sums
-areas and volumes, ranks the nozzles (:mod:`printability.ranking`) and returns
+:class:`~printability.model.layers.LayerStack` for every candidate nozzle, sums
+areas and volumes, ranks the nozzles (:mod:`printability.analysis.ranking`) and returns
 an immutable :class:`Analysis` whose :meth:`Analysis.to_json` is the JSON
 contract of docs/design.md §4.
 

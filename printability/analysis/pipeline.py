@@ -14,12 +14,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
+from printability.analysis.ranking import certified_ranks, ties, uses_volume
 from printability.errors import InputError
-from printability.layers import LayerStack
-from printability.machine import Machine, parse_machine
-from printability.nozzle import Nozzle, parse_nozzle
+from printability.model.layers import LayerStack
+from printability.model.machine import Machine, parse_machine
+from printability.model.nozzle import Nozzle, parse_nozzle
 from printability.options import ENGINES
-from printability.ranking import certified_ranks, ties, uses_volume
 from printability.settings import DEFAULT_SETTINGS, Settings
 
 from .refine import BoundTolerance, RefineOptions, precheck_tolerance, refine_nozzles
@@ -150,7 +150,7 @@ def _first_pass(job: _Job, runner: TaskRunner) -> list[NozzleAnalysis]:
 def _rank(per_nozzle: list[NozzleAnalysis], machine: Machine, layers: LayerStack,
           ) -> list[NozzleAnalysis]:
     """Order by the estimate in the ranking's unit; certified rank ranges and ties."""
-    from printability.ranking import DEFAULT_SPEED, bead_width_for_time, rank_order
+    from printability.analysis.ranking import DEFAULT_SPEED, bead_width_for_time, rank_order
 
     volume = uses_volume([lay.height for lay in layers])
     timed = []

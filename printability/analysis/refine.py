@@ -15,12 +15,12 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
+from printability.analysis.ranking import Totals, ties, uses_volume
 from printability.errors import InputError, ResourceError
-from printability.layers import Layer, LayerStack
-from printability.machine import Machine
 from printability.mmc import choose_engine
-from printability.nozzle import Nozzle
-from printability.ranking import Totals, ties, uses_volume
+from printability.model.layers import Layer, LayerStack
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import Settings
 
 from .results import LayerOutcome, NozzleAnalysis, Refinement

@@ -11,11 +11,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from printability import __version__
-from printability.layers import LayerStack
-from printability.machine import Machine
+from printability.analysis.ranking import Totals, ties, totals, uses_volume
 from printability.mmc import MMCResult
-from printability.nozzle import Nozzle
-from printability.ranking import Totals, ties, totals, uses_volume
+from printability.model.layers import LayerStack
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import Settings
 
 __all__ = ["Analysis", "LayerOutcome", "NozzleAnalysis", "Refinement"]
@@ -75,7 +75,7 @@ class NozzleAnalysis:
 
     ``rank`` is the place in the list (by estimate); ``rank_range`` the ranks the
     certified bounds allow and ``tied_with`` the nozzles whose interval overlaps
-    this one's (:mod:`printability.ranking`). ``allowed_width`` is the width hi − lo
+    this one's (:mod:`printability.analysis.ranking`). ``allowed_width`` is the width hi − lo
     a ``bound_tolerance`` asked for (in the unit of :meth:`totals`), None without one.
     """
 
@@ -88,7 +88,7 @@ class NozzleAnalysis:
     allowed_width: float | None = None
 
     def totals(self, *, volume: bool | None = None) -> Totals:
-        """Target, lost and bounds in one unit (:func:`printability.ranking.totals`)."""
+        """Target, lost and bounds in one unit (:func:`printability.analysis.ranking.totals`)."""
         return totals(self.layers, volume=volume)
 
     @property

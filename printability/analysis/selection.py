@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from printability.errors import InputError
-from printability.layers import LayerStack
+from printability.model.layers import LayerStack
 
 __all__ = ["select_layers"]
 

@@ -17,10 +17,10 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 from printability.errors import InputError, NozzleTooLargeError, PrintabilityOSError
-from printability.layers import Layer
-from printability.machine import Machine
 from printability.mmc import choose_engine, compute_mmc
-from printability.nozzle import Nozzle
+from printability.model.layers import Layer
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import Settings
 
 from .results import LayerOutcome

@@ -13,10 +13,10 @@ from dataclasses import replace
 from typing import Any
 
 from printability.errors import ResourceError
-from printability.layers import LayerStack
-from printability.machine import Machine
 from printability.mmc import choose_engine
-from printability.nozzle import Nozzle
+from printability.model.layers import LayerStack
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import Settings
 
 __all__ = ["RASTER_WORK_BUDGET", "SECONDS_PER_WORK", "check_raster_work", "raster_work"]

@@ -3,7 +3,8 @@
 :mod:`~printability.base.errors` (the exception hierarchy), :mod:`~printability.base.options`
 (the string-option registries), :mod:`~printability.base.settings` (the frozen tolerances),
 :mod:`~printability.base.arrays` (array helpers of the hot paths),
-:mod:`~printability.base.files` (atomic writes) and :mod:`~printability.base.kernel_cache`.
+:mod:`~printability.base.files` (atomic writes), :mod:`~printability.base.parallel` (a
+compiled kernel's items shared out over threads) and :mod:`~printability.base.kernel_cache`.
 
 These modules import only the standard library, numpy and each other — never another part
 of ``printability`` nor ``gcode``, ``machine_io``, ``simulators`` or ``plugin`` (an

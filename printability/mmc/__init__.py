@@ -14,10 +14,10 @@ from typing import Any
 import shapely
 
 from printability.errors import InputError, NozzleTooLargeError
-from printability.geometry import as_region
-from printability.machine import Machine, parse_machine
 from printability.mmc.result import Components, MMCResult, MotionRestriction
-from printability.nozzle import Nozzle, parse_nozzle
+from printability.model.geometry import as_region
+from printability.model.machine import Machine, parse_machine
+from printability.model.nozzle import Nozzle, parse_nozzle
 from printability.options import ENGINES
 from printability.settings import DEFAULT_SETTINGS, Settings
 

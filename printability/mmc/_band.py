@@ -114,7 +114,6 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from printability.geometry import Grid
 from printability.mmc._band_lists import TILE, bucket_pieces, edge_pixels
 from printability.mmc._band_records import (
     BandPixels,
@@ -125,6 +124,7 @@ from printability.mmc._band_records import (
 )
 from printability.mmc._band_settle import settle_pixels
 from printability.mmc._band_slides import pivot_centres, slide_intervals
+from printability.model.geometry import Grid
 
 __all__ = [
     "EPS_SLIDE",

@@ -19,9 +19,9 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from printability.base.kernel_cache import guard as _guard_kernel_caches
-from printability.geometry import polygons_of
 from printability.mmc.orifices import Orifice, offset_orifice
-from printability.shapes import BOX, CONIC, POLYGON
+from printability.model.geometry import polygons_of
+from printability.model.shapes import BOX, CONIC, POLYGON
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
 

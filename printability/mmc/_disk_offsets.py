@@ -89,7 +89,6 @@ from shapely.geometry import MultiPolygon, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from printability.errors import InputError
-from printability.geometry import polygons_of
 from printability.mmc._offset_bands import (
     EMPTY,
     FLOAT_MARGIN,
@@ -100,6 +99,7 @@ from printability.mmc._offset_bands import (
     two_sided_band,
     union_in_order,
 )
+from printability.model.geometry import polygons_of
 
 __all__ = [
     "certified_erosion",

@@ -39,14 +39,14 @@ import shapely.affinity
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
-from printability.geometry import polygons_of
 from printability.mmc._offset_bands import (
     EMPTY,
     as_multi,
     boundary_segments,
     union_in_order,
 )
-from printability.shapes import convex_decomposition
+from printability.model.geometry import polygons_of
+from printability.model.shapes import convex_decomposition
 
 __all__ = ["convex_pieces", "largest_polygon", "minkowski_dilate", "minkowski_erode"]
 

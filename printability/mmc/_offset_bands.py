@@ -18,7 +18,7 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
-from printability.geometry import polygons_of
+from printability.model.geometry import polygons_of
 
 __all__ = [
     "EMPTY",

@@ -39,13 +39,13 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from printability.errors import ResourceError
-from printability.geometry import Grid, polygons_of
-from printability.machine import Machine
 from printability.mmc._raster_kernels import (
     classify_rings,
     coverage_rings,
 )
-from printability.nozzle import Nozzle
+from printability.model.geometry import Grid, polygons_of
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
 
 __all__ = [

@@ -19,10 +19,10 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from printability.errors import InputError, ResourceError
-from printability.geometry import polygons_of, rotation_matrix
-from printability.machine import Machine
 from printability.mmc.orifices import Orifice, angle_gap, offset_orifice, orifices_of
-from printability.nozzle import Nozzle
+from printability.model.geometry import polygons_of, rotation_matrix
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import Settings
 
 __all__ = [

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
-from printability.machine import Machine
 from printability.mmc.orifices import angle_gap, orifices_of
-from printability.nozzle import Nozzle
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import Settings
 
 __all__ = ["SampleSpace", "placed", "ring_coords", "sample_space"]

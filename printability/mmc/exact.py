@@ -1,7 +1,7 @@
 """The exact (vector) MMC engine: P and S as shapely polygons, with certified bounds.
 
 For a separable machine (XY, T-T-R) the nozzle at angle φ is the footprint
-A_φ = R(φ)·A⁰ and (docs/design.md §2, conventions in :mod:`printability.geometry`)
+A_φ = R(φ)·A⁰ and (docs/design.md §2, conventions in :mod:`printability.model.geometry`)
 
     P_φ = {t : A_φ + t ⊆ G} = G ⊖ A_φ,      S = ∪_φ (P_φ ⊕ A_φ).
 
@@ -75,8 +75,6 @@ from shapely.geometry.base import BaseGeometry
 from shapely.ops import polylabel
 
 from printability.errors import InputError
-from printability.geometry import polygons_of, rotation_matrix
-from printability.machine import Machine
 from printability.mmc._disk_offsets import (
     certified_erosion,
     chord_factor,
@@ -93,7 +91,9 @@ from printability.mmc._minkowski import (
 from printability.mmc._offset_bands import EMPTY, as_multi
 from printability.mmc.components import angle_ranges, component_labels
 from printability.mmc.result import Components, MMCInternalError, MMCResult, MotionRestriction
-from printability.nozzle import Footprint, Nozzle
+from printability.model.geometry import polygons_of, rotation_matrix
+from printability.model.machine import Machine
+from printability.model.nozzle import Footprint, Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
 
 __all__ = [
@@ -355,7 +355,7 @@ def mmc_exact(
     Parameters
     ----------
     region
-        The layer target G, already validated (:func:`printability.geometry.as_region`).
+        The layer target G, already validated (:func:`printability.model.geometry.as_region`).
     nozzle, machine
         Any nozzle; a separable machine (``xy`` or ``ttr``).
     settings

@@ -19,10 +19,10 @@ import shapely.affinity
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
-from printability.geometry import rotation_matrix
-from printability.machine import Machine
-from printability.nozzle import Nozzle
-from printability.shapes import Footprint, convex_decomposition
+from printability.model.geometry import rotation_matrix
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
+from printability.model.shapes import Footprint, convex_decomposition
 
 __all__ = [
     "Orifice",
@@ -60,7 +60,7 @@ class Orifice:
     diameter
         Largest distance between two points of ``outer``, mm.
     shape, frame_angle
-        The exact shape (:class:`~printability.shapes.Footprint`): its semi-axes (a, b)
+        The exact shape (:class:`~printability.model.shapes.Footprint`): its semi-axes (a, b)
         describe a circle/ellipse/rectangle centred on ``center`` and turned by
         ``frame_angle`` degrees in the nozzle frame (unused for polygons).
     """

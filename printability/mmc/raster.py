@@ -12,7 +12,7 @@ the sampled angles.
 
 Notation
 --------
-Pixels are the closed squares Q_ij of the Grid (see :mod:`printability.geometry`
+Pixels are the closed squares Q_ij of the Grid (see :mod:`printability.model.geometry`
 for the axis order), c_ij their centres. A kernel offset d = (di, dj) is the
 pixel Q'_d = [(dj−½)h, (dj+½)h] × [(di−½)h, (di+½)h] about the nozzle origin;
 placing a set at c_ij moves Q'_d onto Q_{(i,j)+d}. Erosion is without
@@ -108,8 +108,6 @@ from shapely.geometry import MultiPolygon
 from shapely.geometry.base import BaseGeometry
 
 from printability.errors import InputError
-from printability.geometry import Grid, Raster, as_region
-from printability.machine import Machine
 from printability.mmc._raster_kernels import count_bits_into, pack_bits, unpack_bits
 from printability.mmc._raster_passes import PassResult, opening_pass
 from printability.mmc._raster_prepare import (
@@ -133,7 +131,9 @@ from printability.mmc.result import (
     MotionRestriction,
     PackedMasks,
 )
-from printability.nozzle import Nozzle
+from printability.model.geometry import Grid, Raster, as_region
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
 
 __all__ = [
@@ -308,7 +308,6 @@ def band_settles(nozzle: Nozzle) -> bool:
 def _settle_band(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, s_inner: np.ndarray,
                  outer_mask: np.ndarray) -> dict:
     """Certified bounds and estimate over the uncertain pixels (:mod:`._band`)."""
-    from printability.geometry import rotation_matrix
     from printability.mmc._band import (
         BandBoundary,
         BandFootprint,
@@ -318,6 +317,7 @@ def _settle_band(g: MultiPolygon, nozzle: Nozzle, prob: RasterProblem, s_inner: 
         settle_band,
     )
     from printability.mmc._raster_prepare import oriented_rings
+    from printability.model.geometry import rotation_matrix
 
     f = nozzle.footprints[0]
     # the same set with the longer semi-axis first (a turn by 90° swaps them)

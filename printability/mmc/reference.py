@@ -65,8 +65,6 @@ from shapely.geometry import MultiPolygon
 from shapely.geometry.base import BaseGeometry
 
 from printability.base.kernel_cache import guard as _guard_kernel_caches
-from printability.geometry import polygons_of
-from printability.machine import Machine
 from printability.mmc._reference_setup import (
     LatticeWindow,
     Plan,
@@ -89,7 +87,9 @@ from printability.mmc.orifices import (
     orifices_of,
 )
 from printability.mmc.result import Components, MMCResult, MotionRestriction
-from printability.nozzle import Nozzle
+from printability.model.geometry import polygons_of
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
 
 _guard_kernel_caches()  # the cache check runs before a kernel here loads
@@ -289,7 +289,7 @@ def mmc_reference(
     Parameters
     ----------
     region
-        G, a validated MultiPolygon (see :func:`printability.geometry.as_region`), mm.
+        G, a validated MultiPolygon (see :func:`printability.model.geometry.as_region`), mm.
     nozzle, machine
         The nozzle and an ``xy`` or ``ttr`` machine.
     settings

@@ -31,10 +31,10 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from printability.errors import InputError
-from printability.geometry import Grid
-from printability.machine import Machine
 from printability.mmc.result import MMCInternalError
-from printability.nozzle import Nozzle
+from printability.model.geometry import Grid
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import Settings
 
 __all__ = [

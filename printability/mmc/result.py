@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
-from printability.geometry import Grid, Raster
-from printability.machine import Machine
-from printability.nozzle import Nozzle
+from printability.model.geometry import Grid, Raster
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 
 __all__ = ["Components", "MMCInternalError", "MMCResult", "MotionRestriction", "PackedMasks"]
 

@@ -63,7 +63,6 @@ from shapely.geometry import MultiPolygon
 from shapely.geometry.base import BaseGeometry
 
 from printability.errors import ResourceError
-from printability.machine import Machine
 from printability.mmc._containment import (
     ContainmentTest,
     Edges,
@@ -75,7 +74,8 @@ from printability.mmc._sample_space import SampleSpace, placed, ring_coords, sam
 from printability.mmc._sweeps import sweep
 from printability.mmc.orifices import Orifice, grid_rectangles, orifices_of
 from printability.mmc.result import Components, MMCResult, MotionRestriction
-from printability.nozzle import Nozzle
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
 from printability.settings import DEFAULT_SETTINGS, Settings
 
 __all__ = ["DEFAULT_MAX_SAMPLES", "SampleSpace", "mmc_sampled", "sample_space"]

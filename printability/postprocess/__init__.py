@@ -2,7 +2,7 @@
 
 The slicer's XY paths are kept; for every extruding move of the part the
 nozzle orientation is chosen so that the swept footprint stays inside the
-layer's target (the MMC promise, see :mod:`printability.motion.orientation`)
+layer's target (the MMC promise, see :mod:`printability.planning.orientation`)
 and the bead width matches the slicer's planned width where possible. What
 no orientation can print is cut away and reported per layer. Every line that
 needs no change is kept byte for byte; the changes are:
@@ -39,10 +39,10 @@ gaps the slicer leaves inside it (sparse infill) are filled back, the holes its
 outer walls trace kept (:func:`printability.sources.gcode.fill_interior`), so a
 footprint may reach into a gap (inside the part) instead of turning standing
 still; that target is built by GEOS per layer. With ``interior=False`` it is the
-union of one convex polygon per bead (:mod:`printability.motion.beadunion`:
+union of one convex polygon per bead (:mod:`printability.planning.beadunion`:
 between G ⊕ 0.35τ and G ⊕ τ, without a GEOS overlay; built by
-:mod:`printability.targets`). Layers are planned in
-batches, laid side by side in one plane (:mod:`printability.motion.tiles`) so
+:mod:`printability.planning.targets`). Layers are planned in
+batches, laid side by side in one plane (:mod:`printability.planning.tiles`) so
 that one union and one planner call serve a batch. Non-part moves are left as
 they are.
 

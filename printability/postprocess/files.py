@@ -10,7 +10,7 @@ from pathlib import Path
 
 from printability.base.files import replace_file
 from printability.errors import PrintabilityOSError
-from printability.nozzle import parse_nozzle
+from printability.model.nozzle import parse_nozzle
 from printability.postprocess.memory import check_memory
 from printability.postprocess.options import DEFAULT_OPTIONS, PostprocessOptions
 from printability.postprocess.pipeline import postprocess_bytes

@@ -9,9 +9,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from printability.errors import InputError, excerpt
-from printability.machine import Machine
-from printability.motion.orientation import OrientationOptions
-from printability.nozzle import Nozzle
+from printability.model.machine import Machine
+from printability.model.nozzle import Nozzle
+from printability.planning.orientation import OrientationOptions
 
 
 def _check_range(name: str, value: float, lo: float, hi: float, unit: str) -> None:

@@ -31,12 +31,13 @@ from gcode.flavors import Flavor, RotaryAxis
 from gcode.printtime import PrintTime, estimate_print_time
 from gcode.writer import WriterOptions, format_number, header_lines
 from printability import __version__
-from printability._arrays import take_rows
+from printability.base.arrays import take_rows
 from printability.errors import FileFormatError, InputError, NozzleTooLargeError
-from printability.machine import Machine, parse_machine
-from printability.motion.orientation import PieceMap, Plan, plan_orientations
-from printability.nozzle import Nozzle, parse_nozzle
+from printability.model.machine import Machine, parse_machine
+from printability.model.nozzle import Nozzle, parse_nozzle
 from printability.options import E_POLICIES, FEED_POLICIES
+from printability.planning.orientation import PieceMap, Plan, plan_orientations
+from printability.planning.targets import layer_targets
 from printability.postprocess.binary import postprocess_binary
 from printability.postprocess.memory import check_memory
 from printability.postprocess.options import (
@@ -55,8 +56,7 @@ from printability.postprocess.results import (
     print_time_note,
     unchanged_result,
 )
-from printability.postprocess.scan import already_processed, config_value
-from printability.rewrite import (
+from printability.postprocess.rewrite import (
     ChordPlan,
     RewriteOutput,
     SlicerFile,
@@ -65,7 +65,7 @@ from printability.rewrite import (
     first_command_line,
     rewrite,
 )
-from printability.targets import layer_targets
+from printability.postprocess.scan import already_processed, config_value
 
 if TYPE_CHECKING:  # pragma: no cover
     from gcode.reader import GCodeFile
@@ -340,7 +340,7 @@ def _planned_widths(g: GCodeFile, seg: np.ndarray, seg_move: np.ndarray,
 
 def layer_target_batches(g: GCodeFile, chords: Chords, job: Job, *,
                          options: PostprocessOptions) -> Iterator[tuple]:
-    """The batches of :func:`printability.targets.layer_targets` (built on threads while
+    """The batches of :func:`printability.planning.targets.layer_targets` (built on threads while
     the caller plans), each reported as planned when the next is asked for."""
     if not chords.planned:
         return iter(())
@@ -364,7 +364,7 @@ class LayerPlans:
     fold: np.ndarray
     #: the width laid at that orientation (NaN where none was planned)
     width_laid: np.ndarray
-    #: the split chords' pieces (:class:`~printability.motion.orientation.PieceMap`)
+    #: the split chords' pieces (:class:`~printability.planning.orientation.PieceMap`)
     pieces: Mapping[int, list]
     #: the pieces as arrays ``(chord, t0, t1, angle)`` by chord, and their folds; None when
     #: no chord is split
@@ -451,7 +451,7 @@ def _gathered_pieces(split_found: list[np.ndarray], rows_found: list[tuple]
 def rewrite_moves(g: GCodeFile, data: bytes, chords: Chords, plans: LayerPlans, job: Job, *,
                   options: PostprocessOptions) -> tuple[RewriteOutput, dict[int, int]]:
     """The slicer's file with the moves that need it rewritten
-    (:func:`printability.rewrite.rewrite`), and the moves turned per layer."""
+    (:func:`printability.postprocess.rewrite.rewrite`), and the moves turned per layer."""
     # an interior bead laid wider than planned keeps the slicer's volume: E follows the
     # width only where it is narrower (a wider footprint spreads the same bead)
     with np.errstate(invalid="ignore"):

@@ -21,7 +21,7 @@ def progress(stage: str, done: int = 0, total: int = 0) -> None:
 
 
 def counted(batches: Iterator[tuple], total: int) -> Iterator[tuple]:
-    """``batches`` of :func:`printability.targets.layer_targets`, each reported as planned
+    """``batches`` of :func:`printability.planning.targets.layer_targets`, each reported as planned
     when the next one is asked for (a batch's first item is its layers)."""
     done = 0
     progress("planning the layers", 0, total)

@@ -79,7 +79,7 @@ def layer_reports(g, layers, areas, idx, counts, lay_of, plan, seg_len, widths
                   ) -> list[LayerReport]:
     """What the plan of a batch did to each of its layers (``idx``: the batch's chords,
     ``counts`` per layer, ``lay_of`` the layer of each within the batch)."""
-    from printability.motion.orientation import piece_losses
+    from printability.planning.orientation import piece_losses
 
     n = len(layers)
     split = np.zeros(n, np.int64)

@@ -1,4 +1,5 @@
-"""Layer sources: every input a user brings, read into a :class:`~printability.layers.LayerStack`.
+"""Layer sources: every input a user brings, read into a
+:class:`~printability.model.layers.LayerStack`.
 
 :func:`load_layers` picks the reader from the file's extension, or from its
 first bytes when the extension says nothing (or ``format=`` forces one of
@@ -36,7 +37,7 @@ from typing import Any
 
 from gcode.bgcode import is_bgcode
 from printability.errors import FileFormatError, InputError, PrintabilityOSError, excerpt
-from printability.layers import LayerStack
+from printability.model.layers import LayerStack
 from printability.options import SOURCE_FORMATS
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import MAX_COORDINATE, check_coordinates, option_name

@@ -24,8 +24,8 @@ from printability.errors import (
     ResourceError,
     excerpt,
 )
-from printability.geometry import MAX_COORDINATE, as_region, check_coordinates, polygons_of
-from printability.layers import Layer, LayerStack
+from printability.model.geometry import MAX_COORDINATE, as_region, check_coordinates, polygons_of
+from printability.model.layers import Layer, LayerStack
 from printability.options import UNITS
 
 __all__ = [

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from printability.errors import FileFormatError
-from printability.layers import LayerStack
+from printability.model.layers import LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
     apply_fit,

@@ -79,10 +79,10 @@ import numpy as np
 import shapely
 
 from gcode import CATEGORIES, NON_PART_CATEGORIES, GCodeFile, read_gcode
-from printability._arrays import take_rows
+from printability.base.arrays import take_rows
 from printability.errors import FileFormatError, InputError
-from printability.geometry import as_region
-from printability.layers import Layer, LayerStack
+from printability.model.geometry import as_region
+from printability.model.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import check_positive, require_file
 from printability.sources.gcode_beads import (

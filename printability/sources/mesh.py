@@ -48,8 +48,8 @@ import numpy as np
 import shapely
 
 from printability.errors import FileFormatError, InputError
-from printability.geometry import as_region
-from printability.layers import Layer, LayerStack
+from printability.model.geometry import as_region
+from printability.model.layers import Layer, LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
     check_memory,

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from printability.errors import FileFormatError, excerpt
-from printability.layers import LayerStack
+from printability.model.layers import LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
     MAX_COORDINATE,

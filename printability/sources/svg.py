@@ -77,8 +77,8 @@ import shapely.affinity
 from shapely.geometry import MultiPolygon
 
 from printability.errors import FileFormatError, ResourceError, excerpt
-from printability.geometry import polygons_of
-from printability.layers import LayerStack
+from printability.model.geometry import polygons_of
+from printability.model.layers import LayerStack
 from printability.settings import DEFAULT_SETTINGS, Settings
 from printability.sources._common import (
     apply_fit,

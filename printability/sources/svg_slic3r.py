@@ -18,8 +18,8 @@ import shapely.affinity
 from shapely.geometry import MultiPolygon
 
 from printability.errors import FileFormatError, excerpt
-from printability.geometry import as_region
-from printability.layers import Layer, LayerStack
+from printability.model.geometry import as_region
+from printability.model.layers import Layer, LayerStack
 from printability.settings import Settings
 from printability.sources._common import (
     SVG_NUMBER,

@@ -10,8 +10,8 @@ from shapely.geometry import MultiPolygon, box
 
 from printability.analysis import analyze
 from printability.errors import InputError
-from printability.geometry import as_region
-from printability.layers import Layer, LayerStack
+from printability.model.geometry import as_region
+from printability.model.layers import Layer, LayerStack
 
 
 def _stack(*regions, height=0.2):
@@ -86,7 +86,7 @@ def test_parallel_workers_give_the_same_numbers():
 
 def test_report_is_written(tmp_path):
     pytest.importorskip("matplotlib")
-    from printability.report import write_report
+    from printability.analysis.report import write_report
 
     stack = _stack(box(0, 0, 10, 5), box(0, 0, 10, 0.6))
     a = analyze(stack, ["circle:d=0.8", "ellipse:major=0.8,minor=0.3"], "ttr", engine="exact")

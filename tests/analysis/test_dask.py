@@ -10,8 +10,8 @@ import pytest
 from shapely.geometry import box
 
 from printability.analysis import analyze
-from printability.geometry import as_region
-from printability.layers import Layer, LayerStack
+from printability.model.geometry import as_region
+from printability.model.layers import Layer, LayerStack
 
 distributed = pytest.importorskip(
     "dask.distributed", reason="Dask is not installed (optional extra: pip install "

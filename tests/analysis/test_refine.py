@@ -14,11 +14,11 @@ from shapely.geometry import MultiPolygon, box
 
 from printability.analysis import BoundTolerance, RefineOptions, analyze
 from printability.errors import InputError, ResourceError
-from printability.geometry import as_region
-from printability.layers import Layer, LayerStack
 from printability.mmc import compute_mmc
 from printability.mmc.refine import merge_bounds, refined_settings
 from printability.mmc.result import MMCInternalError
+from printability.model.geometry import as_region
+from printability.model.layers import Layer, LayerStack
 from printability.settings import Settings
 
 
@@ -58,7 +58,7 @@ def test_bad_tolerances_are_refused(bad):
 
 
 def test_relative_tolerance_has_a_floor_of_the_part():
-    from printability.ranking import Totals
+    from printability.analysis.ranking import Totals
 
     t = BoundTolerance.parse("5%")
     assert t.allowed(Totals("area", "mm²", 100.0, 10.0, (9.0, 11.0))) == pytest.approx(0.5)
@@ -76,8 +76,8 @@ def test_merge_keeps_the_tighter_ends_and_refuses_disjoint_intervals():
 
 
 def test_refined_settings_per_engine():
-    from printability.machine import parse_machine
-    from printability.nozzle import parse_nozzle
+    from printability.model.machine import parse_machine
+    from printability.model.nozzle import parse_nozzle
 
     ell, circ = parse_nozzle("ellipse:major=0.8,minor=0.3"), parse_nozzle("circle:d=0.4")
     ttr, xy = parse_machine("ttr:step=4"), parse_machine("xy")

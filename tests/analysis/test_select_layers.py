@@ -7,8 +7,8 @@ from shapely.geometry import box
 
 from printability.analysis import select_layers
 from printability.errors import InputError
-from printability.geometry import as_region
-from printability.layers import Layer, LayerStack
+from printability.model.geometry import as_region
+from printability.model.layers import Layer, LayerStack
 
 STACK = LayerStack(tuple(Layer(z=0.2 * (i + 1), height=0.2, region=as_region(box(0, 0, 1 + i, 1)),
                                index=i) for i in range(10)), source="ten")

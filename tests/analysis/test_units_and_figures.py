@@ -23,8 +23,8 @@ import shapely
 from shapely.geometry import box, shape
 
 from printability.analysis import analyze
-from printability.demo import DEMO_PART
-from printability.layers import Layer, LayerStack
+from printability.app.demo import DEMO_PART
+from printability.model.layers import Layer, LayerStack
 from printability.sources import load_layers
 
 ROUND, ELLIPSE = "circle:d=0.4", "ellipse:major=0.8,minor=0.3"
@@ -63,7 +63,7 @@ def test_cli_ranking_of_several_layers_is_in_volumes_with_volume_bounds():
 
 
 def test_ranking_table_units_follow_the_layers():
-    from printability.cli.analyze import ranking_table
+    from printability.app.cli.analyze import ranking_table
 
     multi = analyze(stack(0.2, 0.2, 0.3), [ROUND], "xy")
     t = ranking_table(multi)
@@ -82,7 +82,7 @@ def test_ranking_table_units_follow_the_layers():
 
 
 def test_totals_share_one_unit():
-    from printability.ranking import totals, uses_volume
+    from printability.analysis.ranking import totals, uses_volume
 
     n = analyze(stack(0.2, 0.4), [ROUND], "xy").nozzles[0]
     v, a = totals(n.layers), totals(n.layers, volume=False)
@@ -144,7 +144,7 @@ def test_layer_figure_colours_follow_the_numbers():
     import matplotlib.pyplot as plt
     from matplotlib.colors import to_hex
 
-    from printability.report import COLORS, draw_layer
+    from printability.analysis.report import COLORS, draw_layer
 
     layers = load_layers(DEMO_PART, layer_height=0.2)
     part = LayerStack((layers[0],), source="comb")

@@ -1,11 +1,11 @@
-"""printability._arrays.take_rows is plain indexing, faster (the values are the same)."""
+"""printability.base.arrays.take_rows is plain indexing, faster (the values are the same)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from gcode import parse_gcode
-from printability._arrays import take_rows
+from printability.base.arrays import take_rows
 
 
 def test_take_rows_is_indexing_on_rows_and_records(shared_data):

@@ -1,4 +1,4 @@
-"""Each convention of printability.geometry's docstring, pinned by a test."""
+"""Each convention of printability.model.geometry's docstring, pinned by a test."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import shapely
 from shapely.geometry import Point, box
 
 from printability.errors import InputError, ResourceError, UnknownOptionError
-from printability.geometry import Grid, Raster, as_region, rotation_matrix
-from printability.machine import parse_machine
-from printability.nozzle import parse_nozzle
+from printability.model.geometry import Grid, Raster, as_region, rotation_matrix
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.options import ENGINES, REGISTRIES
 
 
@@ -186,8 +186,8 @@ def test_auto_engine_choice():
 def test_which_machines_turn_which_nozzles_is_said_once():
     """Machine.turns: a rotary axis and a nozzle that is not round; covers_period: the
     range reaches every orientation of the nozzle."""
-    from printability.machine import parse_machine
-    from printability.nozzle import parse_nozzle
+    from printability.model.machine import parse_machine
+    from printability.model.nozzle import parse_nozzle
 
     ellipse, circle = parse_nozzle("ellipse:major=0.8,minor=0.3"), parse_nozzle("circle:d=0.4")
     ttr, xy = parse_machine("ttr"), parse_machine("xy")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from printability.cli.main import ERROR_LENGTH, error_paragraph
+from printability.app.cli.main import ERROR_LENGTH, error_paragraph
 from printability.errors import FileFormatError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -148,7 +148,7 @@ def test_a_library_warning_is_one_line_of_ours(monkeypatch, capsys, tmp_path):
     import warnings
 
     import printability.sources as sources
-    from printability.cli.main import run
+    from printability.app.cli.main import run
     from printability.errors import InputError
 
     def load(*args, **kwargs):
@@ -163,4 +163,4 @@ def test_a_library_warning_is_one_line_of_ours(monkeypatch, capsys, tmp_path):
     err = capsys.readouterr().err
     assert err.splitlines() == ["printability: warning: invalid value encountered in cast",
                                 "printability: error: the part is bad"], err
-    assert warnings.showwarning.__module__ != "printability.cli.main"  # put back
+    assert warnings.showwarning.__module__ != "printability.app.cli.main"  # put back

@@ -1,11 +1,11 @@
-"""The kernel caches are kept in step with every kernel module (printability._jit_cache)."""
+"""The kernel caches are kept in step with every kernel module (printability.base.kernel_cache)."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-from printability import _jit_cache
+from printability.base import kernel_cache
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -17,11 +17,11 @@ def test_the_list_of_kernel_modules_is_the_modules_with_cached_kernels():
                                              "plugin")
         for p in (ROOT / pkg).rglob("*.py") if "cache=True" in p.read_text(encoding="utf-8")
     )
-    assert sorted(_jit_cache.KERNEL_MODULES) == found
+    assert sorted(kernel_cache.KERNEL_MODULES) == found
 
 
 def _tree(tmp_path: Path, *, sources: bool = True) -> Path:
-    for rel in _jit_cache.KERNEL_MODULES:
+    for rel in kernel_cache.KERNEL_MODULES:
         src = tmp_path / rel
         src.parent.mkdir(parents=True, exist_ok=True)
         if sources:
@@ -40,17 +40,17 @@ def _caches(root: Path) -> list[Path]:
 
 def test_caches_go_when_any_kernel_module_changes_and_stay_otherwise(tmp_path):
     root = _tree(tmp_path)
-    assert _jit_cache.check(str(root))  # no stamp yet: unknown caches are not trusted
+    assert kernel_cache.check(str(root))  # no stamp yet: unknown caches are not trusted
     assert _caches(root) == [] and list(root.rglob("*.pyc"))  # (only numba's)
     # caches written since, under the same sources, are kept
     _tree(root, sources=False)
-    assert not _jit_cache.check(str(root))
-    assert len(_caches(root)) == 2 * len(_jit_cache.KERNEL_MODULES)
+    assert not kernel_cache.check(str(root))
+    assert len(_caches(root)) == 2 * len(kernel_cache.KERNEL_MODULES)
     # one callee edited: every kernel cache goes, callers' included
-    callee = root / "printability/motion/_covers.py"
+    callee = root / "printability/planning/_covers.py"
     callee.write_text("x = 2  # a longer line\n")
     os.utime(callee, ns=(1, 1))
-    assert _jit_cache.check(str(root))
+    assert kernel_cache.check(str(root))
     assert _caches(root) == []
 
 
@@ -61,8 +61,8 @@ def test_a_tree_it_cannot_write_is_left_alone(tmp_path):
     try:
         if os.access(next(root.rglob("__pycache__")), os.W_OK):  # running as root
             return
-        _jit_cache.check(str(root))  # no exception
-        assert len(_caches(root)) == 2 * len(_jit_cache.KERNEL_MODULES)
+        kernel_cache.check(str(root))  # no exception
+        assert len(_caches(root)) == 2 * len(kernel_cache.KERNEL_MODULES)
     finally:
         for d in root.rglob("__pycache__"):
             d.chmod(0o700)
@@ -74,7 +74,7 @@ def test_the_first_real_compile_is_announced_once_and_nothing_else_is():
     import numba
 
     said: list[str] = []
-    _jit_cache.announce_first_compile(said.append)
+    kernel_cache.announce_first_compile(said.append)
 
     def helper(x):
         return x + 1
@@ -113,7 +113,7 @@ def test_a_bad_argument_on_a_cold_install_is_one_paragraph(tmp_path, shared_data
 def test_every_kernel_module_arms_the_check_before_its_kernels():
     """The check runs before the first compile or cache load (not when the package is
     imported): each kernel module calls the guard, above its first cached kernel."""
-    for rel in _jit_cache.KERNEL_MODULES:
+    for rel in kernel_cache.KERNEL_MODULES:
         text = (ROOT / rel).read_text(encoding="utf-8")
         call = text.find("\n_guard_kernel_caches()")
         assert call != -1, f"{rel}: call printability.base.kernel_cache.guard() at the top"
@@ -143,7 +143,6 @@ import printability, printability.base.errors  # noqa: E401
 assert "printability.base.kernel_cache" in sys.modules  # (this probe imported it)
 import gcode.reader
 
-print("jit_cache", "printability._jit_cache" in sys.modules)
 print("after-import", order, k._checked)
 try:
     gcode.reader.parse_gcode(b"G1 X1 Y1\n")
@@ -154,9 +153,9 @@ print("after-call", order[:2])
 
 
 def test_importing_the_reader_runs_no_check_and_the_check_precedes_the_first_load():
-    """``import gcode.reader`` (which imports kernel modules) writes nothing and does not
-    import printability._jit_cache; its first kernel call runs the check before numba loads
-    any cache. A fresh process, so that nothing else has run the check first."""
+    """``import gcode.reader`` (which imports kernel modules) writes nothing and runs no
+    check; its first kernel call runs the check before numba loads any cache. A fresh process,
+    so that nothing else has run the check first."""
     import subprocess
     import sys
 
@@ -164,8 +163,8 @@ def test_importing_the_reader_runs_no_check_and_the_check_precedes_the_first_loa
                        cwd=ROOT, timeout=300)
     assert p.returncode == 0, p.stderr
     lines = p.stdout.splitlines()
-    assert lines == ["jit_cache False", "after-import [] False",
-                     "after-call ['check', 'load']"], p.stdout + p.stderr
+    assert lines == ["after-import [] False", "after-call ['check', 'load']"], \
+        p.stdout + p.stderr
 
 
 def test_importing_the_package_or_its_base_loads_no_kernel_machinery():

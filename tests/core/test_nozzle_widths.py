@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from printability.nozzle import parse_nozzle
+from printability.model.nozzle import parse_nozzle
 
 SPECS = [
     "circle:d=0.4",

@@ -1,4 +1,4 @@
-"""printability._parallel.shared_out: every item once, in parts of even work, errors kept."""
+"""printability.base.parallel.shared_out: every item once, in parts of even work, errors kept."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import threading
 import numpy as np
 import pytest
 
-from printability._parallel import shared_out
+from printability.base.parallel import shared_out
 
 
 def _record(weight, workers, min_items):

@@ -1,4 +1,4 @@
-"""Orifice shapes as types (printability.shapes): each answers the engines' questions, checked
+"""Orifice shapes as types (printability.model.shapes): each answers the engines' questions, checked
 against the orifice's own outline (GEOS) as the oracle."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import shapely
 import shapely.affinity
 from shapely.geometry import Point
 
-from printability._group_kernel import _bead_width, measures, orifice_of
-from printability.nozzle import parse_nozzle
+from printability.generate._group_kernel import _bead_width, measures, orifice_of
+from printability.model.nozzle import parse_nozzle
+from printability.model.shapes import BOX, CONIC, POLYGON, SHAPES, Footprint
 from printability.options import NOZZLE_KINDS
-from printability.shapes import BOX, CONIC, POLYGON, SHAPES, Footprint
 
 # one of each shape, offset and turned in the nozzle frame, and heads of several orifices
 SPECS = [

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from printability.demo import DEMO_PART
+from printability.app.demo import DEMO_PART
 
 
 def run(*args: str) -> subprocess.CompletedProcess:

@@ -18,7 +18,7 @@ import sys
 import numpy as np
 import pytest
 
-from printability.demo import LAYER_COLUMNS, DemoLayer, format_layer_table
+from printability.app.demo import LAYER_COLUMNS, DemoLayer, format_layer_table
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 AS_BUILT, LOST, DEPOSITED = (0x4C, 0x9B, 0xE8), (0xE8, 0x51, 0x4C), (0x7B, 0x32, 0x94)
@@ -73,7 +73,7 @@ def test_report_tables_give_units(demo):
 def test_ranking_of_several_layers_in_volumes(tmp_path):
     """The bundled comb (4 layers): the page ranks by volume, as analyze does."""
     from printability.analysis import analyze
-    from printability.demo import DEMO_PART, DemoResult, _html, _ranking_row
+    from printability.app.demo import DEMO_PART, DemoResult, _html, _ranking_row
     from printability.sources import load_layers
 
     a = analyze(load_layers(DEMO_PART, layer_height=0.2), [ROUND], "xy")

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from printability.generate import generate_file
-from printability.machine import parse_machine
+from printability.model.machine import parse_machine
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 from simulators.klipper_batch import START_END_MACROS, klipper_available, printer_cfg, run_klipper
 

@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from gcode import parse_gcode
 from machine_io import parse_program
 from printability.errors import PrintabilityError
-from printability.machine import parse_machine
-from printability.nozzle import parse_nozzle
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.sources.geo import load_geojson_layers, load_wkt_layers
 from printability.sources.mesh import load_mesh
 from printability.sources.slices import load_slice_layers

@@ -10,7 +10,7 @@ import pytest
 from gcode.flavors import FLAVORS, KlipperFlavor, RotaryAxis, flavor_named
 from gcode.rotary import feed_for_move
 from printability.errors import FileFormatError, InputError
-from printability.machine import DEFAULT_BED, parse_machine
+from printability.model.machine import DEFAULT_BED, parse_machine
 from printability.options import FLAVORS as FLAVOR_REGISTRY
 
 

@@ -1,4 +1,4 @@
-"""The generator's compiled moves (:mod:`printability._emit_kernel`) against the emitter.
+"""The generator's compiled moves (:mod:`printability.generate._emit_kernel`) against the emitter.
 
 The oracle is :class:`gcode.writer.Emitter` itself, driven as the generator drove it
 before the kernel (``_travel`` then ``Emitter.extrude`` per piece): every byte and every
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from test_generate import ELLIPSE, TTR_PROFILE, _l_shape, _stack
 
-import printability.generate as gen
+import printability.generate.pipeline as gen
 from gcode.writer import Emitter, WriterOptions
-from printability._emit_kernel import emit, hypot
 from printability.generate import GenerateOptions, generate_gcode
+from printability.generate._emit_kernel import emit, hypot
 from printability.sources import load_layers
 
 

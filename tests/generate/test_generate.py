@@ -17,12 +17,12 @@ from shapely.geometry import Polygon
 from gcode import parse_gcode
 from printability.errors import InputError
 from printability.generate import GenerateOptions, generate_gcode
-from printability.geometry import as_region
-from printability.layers import Layer, LayerStack
-from printability.machine import parse_machine
 from printability.mmc import compute_mmc
-from printability.motion.check import check_deposition, extrusion_chords
-from printability.nozzle import parse_nozzle
+from printability.model.geometry import as_region
+from printability.model.layers import Layer, LayerStack
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
+from printability.planning.check import check_deposition, extrusion_chords
 from printability.sources import load_layers
 
 ELLIPSE = "ellipse:major=0.8,minor=0.3"

@@ -51,7 +51,7 @@ def test_the_port_is_checked_before_the_file_is_read(late_failure):
 def test_the_port_is_opened_before_the_program_is_loaded(late_failure, monkeypatch):
     # in-process: the host opens the port, then the file is read, then the handshake
     import machine_io
-    from printability.cli.main import run as cli_run
+    from printability.app.cli.main import run as cli_run
 
     order: list[str] = []
     real_load = machine_io.load_program

@@ -28,7 +28,7 @@ import shapely
 import shapely.affinity
 from shapely.geometry import MultiPolygon, Point, Polygon, box
 
-from printability.geometry import as_region
+from printability.model.geometry import as_region
 
 __all__ = [
     "SHARED_DATA",
@@ -380,7 +380,7 @@ def corner_catalogue() -> dict[str, Shape]:
     is ≥ 4 mm wide: :func:`corner_form_holds` for disks up to ``feature`` = 2 mm
     across, the largest diameter the tests use. No
     self-intersecting input: a bow-tie is split into two triangles by
-    :func:`printability.geometry.as_region` and is tested on its own.
+    :func:`printability.model.geometry.as_region` and is tested on its own.
     """
     tri = {"acute": ((0, 0), (12, 0), (5, 10)),
            "right": ((0, 0), (12, 0), (0, 9)),

@@ -27,8 +27,6 @@ from shapes import (
     star,
 )
 
-from printability.geometry import as_region, rotation_matrix
-from printability.machine import parse_machine
 from printability.mmc import _band, compute_mmc
 from printability.mmc._band_geometry import poly_dist
 from printability.mmc._band_lower import min_support
@@ -36,7 +34,9 @@ from printability.mmc._band_slides import blocked_interval
 from printability.mmc._raster_prepare import oriented_rings, prepare_raster
 from printability.mmc.raster import mmc_raster
 from printability.mmc.result import MMCInternalError
-from printability.nozzle import parse_nozzle
+from printability.model.geometry import as_region, rotation_matrix
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 

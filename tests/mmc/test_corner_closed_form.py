@@ -36,12 +36,12 @@ from shapes import (
     u_shape,
 )
 
-from printability.geometry import as_region
 from printability.mmc import compute_mmc
 from printability.mmc import exact as exact_module
 from printability.mmc._offset_bands import EMPTY as _EMPTY
 from printability.mmc._offset_bands import split_lines as _split_lines
 from printability.mmc.result import MMCInternalError
+from printability.model.geometry import as_region
 from printability.settings import Settings
 
 CORNERS = corner_catalogue()

@@ -11,8 +11,6 @@ from shapely.geometry import Point, box
 from shapes import catalogue, load_coastline, load_slice, rectangle, slot, strip, u_shape
 
 from printability.errors import InputError, NozzleTooLargeError
-from printability.geometry import rotation_matrix
-from printability.machine import parse_machine
 from printability.mmc import compute_mmc
 from printability.mmc._minkowski import convex_pieces as _convex_pieces
 from printability.mmc.exact import (
@@ -20,7 +18,9 @@ from printability.mmc.exact import (
     minkowski_erode,
     mmc_exact,
 )
-from printability.nozzle import parse_nozzle
+from printability.model.geometry import rotation_matrix
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 SHAPES = list(catalogue().values())

@@ -11,10 +11,10 @@ from hypothesis import settings as hyp_settings
 from hypothesis import strategies as st
 from shapes import comb, rectangle, u_shape
 
+from printability.analysis.ranking import RankRow, bead_width_for_time, rank
 from printability.errors import InputError
 from printability.mmc import compute_mmc
-from printability.nozzle import parse_nozzle
-from printability.ranking import RankRow, bead_width_for_time, rank
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 
@@ -102,7 +102,7 @@ def test_an_entry_mixing_nozzles_is_refused():
 # -- certified ranks: what the bounds establish -----------------------------------------------
 
 def test_certified_ranks_of_disjoint_overlapping_and_touching_intervals():
-    from printability.ranking import certified_ranks, rank_label, ties
+    from printability.analysis.ranking import certified_ranks, rank_label, ties
 
     bounds = [(0.0, 1.0), (2.0, 3.0), (2.5, 4.0), (4.0, 5.0)]
     assert certified_ranks(bounds) == [(1, 1), (2, 3), (2, 4), (3, 4)]
@@ -117,7 +117,7 @@ def test_certified_ranks_of_disjoint_overlapping_and_touching_intervals():
 @hyp_settings(max_examples=200, deadline=None)
 def test_the_exact_values_rank_within_the_certified_ranges(items):
     """Whatever the exact values inside their intervals, their true ranks lie in the ranges."""
-    from printability.ranking import certified_ranks
+    from printability.analysis.ranking import certified_ranks
 
     bounds = [(lo, lo + w) for lo, w, _ in items]
     exact = [lo + t * w for lo, w, t in items]

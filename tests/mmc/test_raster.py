@@ -13,8 +13,6 @@ from shapely import affinity
 from shapely.geometry import MultiPolygon, Point, Polygon, box
 
 from printability.errors import InputError, ResourceError
-from printability.geometry import Grid, as_region
-from printability.machine import parse_machine
 from printability.mmc import _raster_kernels as rk
 from printability.mmc import compute_mmc
 from printability.mmc._raster_passes import _mask_runs, opening_pass
@@ -25,7 +23,9 @@ from printability.mmc.raster import (
     prepare_raster,
     rasterize_region,
 )
-from printability.nozzle import parse_nozzle
+from printability.model.geometry import Grid, as_region
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 

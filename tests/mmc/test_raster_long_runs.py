@@ -13,7 +13,7 @@ import shapely
 from shapes import star
 
 from printability.mmc import compute_mmc
-from printability.nozzle import parse_nozzle
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 

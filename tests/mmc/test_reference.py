@@ -18,11 +18,11 @@ from shapely.geometry import MultiPolygon, box
 from shapes import catalogue, rectangle, slot, strip, u_shape
 
 from printability.errors import InputError, ResourceError
-from printability.geometry import as_region, polygons_of
-from printability.machine import parse_machine
 from printability.mmc import compute_mmc
 from printability.mmc.reference import grid_rectangles, mmc_reference
-from printability.nozzle import parse_nozzle
+from printability.model.geometry import as_region, polygons_of
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 CATALOGUE = catalogue()

@@ -18,11 +18,11 @@ from shapely.geometry import MultiPolygon, Point, box
 from shapes import catalogue, rectangle, slot, strip
 
 from printability.errors import ResourceError
-from printability.geometry import as_region
-from printability.machine import Joint, parse_machine
 from printability.mmc import compute_mmc
 from printability.mmc.sampled import mmc_sampled, sample_space
-from printability.nozzle import parse_nozzle
+from printability.model.geometry import as_region
+from printability.model.machine import Joint, parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 
 CATALOGUE = catalogue()

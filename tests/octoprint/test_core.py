@@ -13,8 +13,8 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from printability.errors import InputError, NozzleTooLargeError, PrintabilityError
-from printability.machine import parse_machine
-from printability.nozzle import parse_nozzle
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.options import FLAVORS
 from printability.postprocess import PostprocessOptions, postprocess_file
 
@@ -78,7 +78,7 @@ def test_options_and_cli_arguments(core):
 
 
 def test_machine_file_from_the_data_folder(core, tmp_path):
-    from printability.machine import builtin_profiles
+    from printability.model.machine import builtin_profiles
 
     (tmp_path / "mine.toml").write_bytes(builtin_profiles()["ttr-klipper"].read_bytes())
     assert core.check_setting("machine", " mine.toml", base_dir=tmp_path) == "mine.toml"

@@ -22,7 +22,7 @@ import pytest
 from _cdp import CHROMIUM, Browser
 from _op_server import ROOT, needs_octoprint, octoprint_server
 
-from printability.nozzle import parse_nozzle
+from printability.model.nozzle import parse_nozzle
 
 pytestmark = needs_octoprint()
 

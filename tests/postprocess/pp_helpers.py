@@ -102,7 +102,7 @@ def laid_widths(data: bytes, nozzle: str, monkeypatch) -> tuple[float, float]:
     import numpy as np
 
     import printability.postprocess as pp
-    from printability.nozzle import parse_nozzle
+    from printability.model.nozzle import parse_nozzle
     from printability.postprocess import pipeline
 
     plans = []
@@ -149,8 +149,8 @@ def check_rewritten_part(old: bytes, new: bytes, g0, g1, nozzle: str) -> None:
     import numpy as np
 
     from gcode import NON_PART_CATEGORIES
-    from printability.motion.check import check_deposition, extrusion_chords
-    from printability.nozzle import parse_nozzle
+    from printability.model.nozzle import parse_nozzle
+    from printability.planning.check import check_deposition, extrusion_chords
 
     m = g0.moves
     part = m["is_extrusion"] & ~g0.moves_in(NON_PART_CATEGORIES)

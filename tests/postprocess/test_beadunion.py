@@ -1,4 +1,4 @@
-"""The bead union G' (printability.motion.beadunion) against GEOS.
+"""The bead union G' (printability.planning.beadunion) against GEOS.
 
 Oracles: GEOS's union of the very same convex polygons (boundary, area,
 point location), and GEOS's reconstruction of G (quad_segs 32) for the
@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from gcode import parse_gcode
 from printability.errors import InputError
-from printability.motion.beadunion import SIDE, bead_union, union_contains_xy, union_covers
+from printability.planning.beadunion import SIDE, bead_union, union_contains_xy, union_covers
 from printability.settings import Settings
 from printability.sources.gcode import layer_beads
 
@@ -169,8 +169,8 @@ def test_empty_and_bad_input():
 def test_the_fused_search_decides_as_geos_on_a_bead_union(nozzle):
     """``fits`` (fused kernel; points located in the polygons, also for an offset orifice
     whose footprint need not hold its path) against GEOS's covers on the same union."""
-    from printability.motion.footprints import convex_pieces, fits
-    from printability.nozzle import parse_nozzle
+    from printability.model.nozzle import parse_nozzle
+    from printability.planning.footprints import convex_pieces, fits
 
     rng = np.random.default_rng(7)
     n = 60
@@ -191,10 +191,10 @@ def test_the_fused_search_decides_as_geos_on_a_bead_union(nozzle):
 def _random_polygons(rng, n, *, lengths, radii, tau):
     """n bead polygons on random segments (lengths drawn from ``lengths``, radii uniform
     in ``radii``): the beads, their polygons and corner cosines."""
-    from printability.motion._bead_boundary import _corner_cosines
-    from printability.motion._bead_polygons import bead_polygons
-    from printability.motion.beadunion import INNER
-    from printability.motion.records import BeadPolygons, Beads, HalfPlanes
+    from printability.planning._bead_boundary import _corner_cosines
+    from printability.planning._bead_polygons import bead_polygons
+    from printability.planning.beadunion import INNER
+    from printability.planning.records import BeadPolygons, Beads, HalfPlanes
 
     ax, ay = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
     length = rng.choice(lengths, n)
@@ -213,8 +213,8 @@ def test_the_windowed_clip_is_the_full_clip_to_the_bit(seed, tau):
     """_clip_windows skips the half-planes that hold both ends of an edge by a margin; the
     interval must be the full Liang–Barsky loop's, bit for bit, for edges at any distance
     and direction from the polygon (near its sides, its caps and far from it)."""
-    from printability.motion._bead_boundary import _clip, _clip_windows, _window
-    from printability.motion.beadunion import _EPS
+    from printability.planning._bead_boundary import _clip, _clip_windows, _window
+    from printability.planning.beadunion import _EPS
 
     rng = np.random.default_rng(seed)
     n = 40
@@ -249,8 +249,8 @@ def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
     """_clip_windows may take any windows that hold the planes the ends need: widened
     windows, windows far apart or wrapping past plane 0, evaluated as one arc or two, give
     the full loop's interval to the bit."""
-    from printability.motion._bead_boundary import _clip, _clip_windows, _window
-    from printability.motion.beadunion import _EPS
+    from printability.planning._bead_boundary import _clip, _clip_windows, _window
+    from printability.planning.beadunion import _EPS
 
     rng = np.random.default_rng(seed)
     n = 30
@@ -286,7 +286,7 @@ def test_windows_evaluated_as_one_arc_or_two_give_the_full_clip(seed):
 def test_threads_build_the_same_union_to_the_bit(shared_data, workers, monkeypatch):
     """The boundary pieces of a busy layer computed on threads are the single thread's, in
     the same order, and so is the area."""
-    import printability._parallel as par
+    import printability.base.parallel as par
 
     g = parse_gcode((shared_data / "gcode" / "prusaslicer_2.7.4_marlin2_arcs.gcode").read_bytes())
     seg, width, _, _, bounds, _ = layer_beads(g, settings=Settings(quad_segs=32),

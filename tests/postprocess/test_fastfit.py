@@ -1,6 +1,6 @@
 """The fast footprint test decides exactly as ``shapely.covers`` (differential tests).
 
-:func:`printability.motion.fastfit.covers_rings` may only save time: every
+:func:`printability.planning.fastfit.covers_rings` may only save time: every
 footprint it decides must get the answer ``shapely.covers`` gives, on real
 slicer files (every call the orientation search makes, move by move) and on
 random targets with holes, including footprints that touch ∂G exactly.
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 import shapely
 
-import printability.motion.footprints as footprints
-from printability.motion.fastfit import covers, covers_rings
-from printability.motion.footprints import _swept, convex_pieces, grown_target
-from printability.nozzle import parse_nozzle
+import printability.planning.footprints as footprints
+from printability.model.nozzle import parse_nozzle
+from printability.planning.fastfit import covers, covers_rings
+from printability.planning.footprints import _swept, convex_pieces, grown_target
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 
 NOZZLES = ["ellipse:major=0.8,minor=0.3", "rect:w=0.7,h=0.25"]
@@ -140,7 +140,7 @@ def test_swept_kernel_is_the_numpy_path_to_the_bit(nozzle):
 def test_move_normals_are_the_left_unit_normals():
     """The footprints' directions turn with the move's left normal, (1, 0) for a move of no
     length: two of the 64 half-planes are then the long sides of the swept set."""
-    from printability.motion.footprints import _move_normals
+    from printability.planning.footprints import _move_normals
 
     p0 = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, -1.0], [5.0, 5.0]])
     p1 = np.array([[3.0, 0.0], [1.0, 4.0], [-1.0, 3.0], [5.0, 5.0]])
@@ -161,8 +161,8 @@ def test_the_kernel_normal_is_the_numpy_normal_to_the_bit():
     """The fused kernel finds each move's normal itself (:func:`move_normal`); the rings of
     the grazing footprints take them from :func:`_move_normals`: the half-planes of both
     must be the same bits, zero-length and slicer-rounded moves included."""
-    from printability.motion._sweep import move_normal
-    from printability.motion.footprints import _move_normals
+    from printability.planning._sweep import move_normal
+    from printability.planning.footprints import _move_normals
 
     rng = np.random.default_rng(11)
     q0 = rng.uniform(-300, 300, (20000, 2))
@@ -177,7 +177,7 @@ def test_the_kernel_normal_is_the_numpy_normal_to_the_bit():
 
 def test_chain_nearest_is_the_python_loop():
     """The compiled chaining picks what the Python loop picked, ties and halves included."""
-    from printability.motion._plan_kernels import chain_nearest
+    from printability.planning._plan_kernels import chain_nearest
 
     rng = np.random.default_rng(5)
     c1 = np.concatenate([rng.uniform(-720, 720, 3000), np.arange(-450.0, 450.0, 45.0)])
@@ -238,7 +238,7 @@ def test_point_location_along_a_grid_row():
 
 def test_smooth_chain_is_the_python_loop():
     """The compiled smoothing proposals are those of the Python loop, halves included."""
-    from printability.motion._plan_kernels import smooth_chain
+    from printability.planning._plan_kernels import smooth_chain
 
     rng = np.random.default_rng(6)
     n = 4000
@@ -298,7 +298,7 @@ def test_merge_pieces_is_the_python_loop():
     same orientation, as the loop over lists of tuples joined them."""
     import math
 
-    from printability.motion._plan_kernels import merge_pieces
+    from printability.planning._plan_kernels import merge_pieces
 
     rng = np.random.default_rng(5)
     n = 3000
@@ -329,7 +329,7 @@ def test_deep_in_sweep_only_where_the_edge_enters_the_footprint(nozzle):
     """The refusal shortcut of the remembered edges: where it says an edge has a piece
     deep in the swept ellipse, the footprint's polygon shrunk by far more than EPS holds
     a piece of that edge; and it says so for most edges crossing the move."""
-    from printability.motion._sweep import _deep_in_sweep
+    from printability.planning._sweep import _deep_in_sweep
 
     rng = np.random.default_rng(3)
     (piece,) = convex_pieces(parse_nozzle(nozzle))

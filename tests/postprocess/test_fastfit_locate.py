@@ -1,4 +1,4 @@
-"""Point location in a bead union by the fused search (printability.motion._point_location).
+"""Point location in a bead union by the fused search (printability.planning._point_location).
 
 The fused search first asks whether a point lies well within a bead's radius of its
 axis (``_near_axis``): a shortcut of the polygon test (``in_polygons``) that may only
@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from printability.motion._point_location import _AXIS, _near_axis, locate
-from printability.motion.beadunion import bead_union, in_polygons
-from printability.motion.fastfit import boundary_grid, locator
+from printability.planning._point_location import _AXIS, _near_axis, locate
+from printability.planning.beadunion import bead_union, in_polygons
+from printability.planning.fastfit import boundary_grid, locator
 
 TAU = 0.95e-3
 

@@ -1,8 +1,8 @@
 """The orientation planner turns on rather than rocking (issue 22).
 
-:func:`printability.motion.turns.least_turning` re-picks every whole move's
+:func:`printability.planning.turns.least_turning` re-picks every whole move's
 orientation among admissible candidates with a Viterbi pass over each path
-(:func:`printability.motion._plan_kernels.chain_viterbi`): a turn the nozzle must make
+(:func:`printability.planning._plan_kernels.chain_viterbi`): a turn the nozzle must make
 standing still (a full stop of the XY motion on real firmware) and a reversal cost extra.
 On real slicer files it must turn less, stand still less and reverse less than the
 move-by-move picks it replaces, and keep every pick admissible (the deposition checks of
@@ -16,9 +16,9 @@ import re
 import numpy as np
 import pytest
 
-import printability.motion.orientation as orientation
-from printability.motion._plan_kernels import chain_viterbi
-from printability.motion.orientation import OrientationOptions
+import printability.planning.orientation as orientation
+from printability.planning._plan_kernels import chain_viterbi
+from printability.planning.orientation import OrientationOptions
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 
 _C = re.compile(rb"(?<![A-Z;])C(-?[0-9.]+)")

@@ -17,14 +17,14 @@ from pathlib import Path
 import numpy as np
 from pp_helpers import geos_targets
 
-import printability._rewrite_kernel as rk
-import printability.motion.orientation as orientation
+import printability.planning.orientation as orientation
+import printability.postprocess._rewrite_kernel as rk
 import printability.postprocess.pipeline as pipeline
 from gcode import parse_gcode
-from printability.motion import footprints as fp
-from printability.motion.check import check_deposition, extrusion_chords
-from printability.motion.turns import turning_fits
-from printability.nozzle import parse_nozzle
+from printability.model.nozzle import parse_nozzle
+from printability.planning import footprints as fp
+from printability.planning.check import check_deposition, extrusion_chords
+from printability.planning.turns import turning_fits
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 
 HERE = Path(__file__).parent

@@ -16,9 +16,9 @@ from pp_helpers import geos_targets, laid_widths, lines_not_kept
 from gcode import NON_PART_CATEGORIES, parse_gcode
 from printability.errors import FileFormatError, InputError
 from printability.mmc import compute_mmc
-from printability.motion.beadunion import SIDE
-from printability.motion.check import check_deposition, extrusion_chords
-from printability.nozzle import parse_nozzle
+from printability.model.nozzle import parse_nozzle
+from printability.planning.beadunion import SIDE
+from printability.planning.check import check_deposition, extrusion_chords
 from printability.postprocess import (
     PostprocessOptions,
     already_processed,
@@ -292,13 +292,13 @@ def test_the_planned_width_is_laid_where_it_fits(shared_data, monkeypatch, name,
 def test_threads_change_nothing(shared_data, monkeypatch):
     """The targets built on threads, the first one shared out over them, and the planner's
     footprint tests shared out too: the same bytes as on one thread."""
-    import printability._parallel as par
+    import printability.base.parallel as par
 
     data = (shared_data / "gcode" / "prusaslicer_2.7.4_marlin2_arcs.gcode").read_bytes()
     started = []
 
     def start(self, _s=par.threading.Thread.start):
-        # the threads printability._parallel shares work out on (a thread pool's own count
+        # the threads printability.base.parallel shares work out on (a thread pool's own count
         # depends on timing: it reuses an idle thread when one is free)
         started.append(sys._getframe(1).f_code.co_filename == par.__file__)
         return _s(self)
@@ -328,7 +328,7 @@ def test_reported_target_area_is_that_of_g(processed, key):
 
 def test_bead_union_area_is_that_of_g_within_its_margin(prusa_short):
     """Against the beads alone (``interior=False``, the bead union of
-    :mod:`printability.motion.beadunion`): the union's area less sτ × its perimeter is G's
+    :mod:`printability.planning.beadunion`): the union's area less sτ × its perimeter is G's
     area, within that much."""
     data = prusa_short.read_bytes()
     _, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",

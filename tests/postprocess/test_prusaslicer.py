@@ -13,8 +13,8 @@ import pytest
 from pp_helpers import check_rewritten_part, geos_targets, laid_widths
 
 from gcode import parse_gcode
-from printability.motion.check import check_deposition, extrusion_chords
-from printability.nozzle import parse_nozzle
+from printability.model.nozzle import parse_nozzle
+from printability.planning.check import check_deposition, extrusion_chords
 from printability.postprocess import already_processed
 
 CONFIG = Path(__file__).with_name("data") / "prusaslicer_ttr.ini"
@@ -78,7 +78,7 @@ def test_the_cubes_repeated_layers_share_their_union(prusa_slicer, shared_data, 
     """The real cube repeats a third of its layers to the bit: their beads go into the union
     once (the beads built are those of the distinct layers, counted here from the slicer's
     own chords), and a repeated layer's deposition stays inside its own G."""
-    import printability.targets as pp_targets
+    import printability.planning.targets as pp_targets
     from printability.postprocess import PostprocessOptions, postprocess_bytes
     from printability.settings import Settings
     from printability.sources.gcode import layer_beads

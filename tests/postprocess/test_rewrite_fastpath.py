@@ -22,8 +22,8 @@ from gcode.edit import edit_tokens as _edit_tokens
 from gcode.line import parse_line
 from gcode.rotary import bead_area
 from gcode.writer import edit_line, simple_move_words
-from printability.nozzle import parse_nozzle
-from printability.rewrite import e_scale, e_scales, planned_turns
+from printability.model.nozzle import parse_nozzle
+from printability.postprocess.rewrite import e_scale, e_scales, planned_turns
 
 SAMPLES = GCODE_SAMPLES
 
@@ -136,7 +136,7 @@ def test_vector_planned_turn(angles):
     assert planned_turns(a).tolist() == want
 
 
-# ---- the compiled rewrite pass's line shape (printability._text_kernel) against the Python it
+# ---- the compiled rewrite pass's line shape (gcode.text_kernels) against the Python it
 # replaces
 
 
@@ -150,7 +150,7 @@ def _span(raw: bytes) -> tuple[int, int]:
 @settings(max_examples=800)
 @given(_odd_lines())
 def test_compiled_line_shape_is_the_expression(raw):
-    from printability._text_kernel import simple_span
+    from gcode.text_kernels import simple_span
 
     assert simple_span(np.frombuffer(raw, np.uint8), 0, len(raw)) == _span(raw), raw
 
@@ -159,7 +159,7 @@ def test_compiled_line_shape_is_the_expression(raw):
 @given(st.binary(max_size=40).map(lambda b: b.replace(b"\n", b" ").replace(b"\r", b" ")),
        st.sampled_from([b"", b"\n", b"\r\n", b"\r"]))
 def test_compiled_line_shape_on_random_bytes(body, eol):
-    from printability._text_kernel import simple_span
+    from gcode.text_kernels import simple_span
 
     for raw in (b"G1 " + body + eol, body + eol, b"G1 X1 " + body[:3] + eol):
         assert simple_span(np.frombuffer(raw, np.uint8), 0, len(raw)) == _span(raw), raw

@@ -1,9 +1,9 @@
 """The compiled rewrite pass writes the bytes of the Python reference.
 
 Oracles: :func:`gcode.writer.format_number` (printf's correctly rounded digits)
-for the compiled number formatting (:mod:`printability._text_kernel`), ``float()`` for its
-number reading, :func:`printability.rewrite.rewrite_reference` for the whole pass, on real
-slicer files under every option that changes what is written (bounded axis,
+for the compiled number formatting (:mod:`gcode.text_kernels`), ``float()`` for its
+number reading, :func:`printability.postprocess.rewrite.rewrite_reference` for the whole
+pass, on real slicer files under every option that changes what is written (bounded axis,
 unwind, feed policy, absolute E, spiral vase climbs, an offset orifice).
 """
 
@@ -17,8 +17,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pp_helpers import first_layers
 
-import printability._rewrite_kernel as rk
-import printability._text_kernel as tk
+import gcode.text_kernels as tk
+import printability.postprocess._rewrite_kernel as rk
 from gcode.writer import format_number
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 

@@ -1,4 +1,4 @@
-"""``printability serve`` and the plug-in's hand-over to it (printability.server*)."""
+"""``printability serve`` and the plug-in's hand-over to it (printability.app.server*)."""
 
 from __future__ import annotations
 
@@ -14,10 +14,8 @@ import pytest
 
 from plugin.prusaslicer import main as plugin_main
 from printability import __version__
-from printability.errors import PrintabilityOSError
-from printability.postprocess import already_processed
-from printability.server import serve, server_status, source_stamp, stop_server
-from printability.server_client import (
+from printability.app.server import serve, server_status, source_stamp, stop_server
+from printability.app.server_client import (
     ServerAddressError,
     call,
     default_address,
@@ -27,6 +25,8 @@ from printability.server_client import (
     secure_dir,
     server_policy,
 )
+from printability.errors import PrintabilityOSError
+from printability.postprocess import already_processed
 
 ELLIPSE = "ellipse:major=0.8,minor=0.3"
 PLUGIN = str(Path(sys.executable).with_name("printability-postprocess"))
@@ -409,7 +409,7 @@ def test_a_server_that_does_not_answer_yet_is_not_replaced(private):
 _FAULTS = """
 import resource, sys
 import numpy as np
-from printability.server import retain_freed_memory
+from printability.app.server import retain_freed_memory
 kept = retain_freed_memory() if sys.argv[1] == "keep" else False
 def faults():
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -444,7 +444,7 @@ def test_the_client_starts_on_the_standard_library_alone():
     """Every export pays the client's start: it imports neither the libraries the work needs
     nor the heavy parts of the standard library (``dataclasses`` pulls in ``inspect``;
     ``typing`` alone is about 10 ms; ``socket`` 6 ms, for ``enum`` and ``selectors``)."""
-    code = ("import sys; import plugin.prusaslicer, printability.server_client; "
+    code = ("import sys; import plugin.prusaslicer, printability.app.server_client; "
             "print(' '.join(sorted(m for m in ('numpy', 'numba', 'shapely', 'typer', 'rich', "
             "'dataclasses', 'inspect', 'typing', 'socket', 'selectors', 'struct', 'shlex') "
             "if m in sys.modules)))")

@@ -1,7 +1,7 @@
 """Deadlines between the plug-in and ``printability serve``: a silent or slow client holds up
 nobody, a stopped or silent server holds up no export, and whichever side gives up, the file
 is written once, with the bytes a local run writes (the ticket, see
-:mod:`printability.server_client`)."""
+:mod:`printability.app.server_client`)."""
 
 from __future__ import annotations
 
@@ -18,18 +18,18 @@ from pathlib import Path
 import pytest
 from test_server_fuzz import RealServer
 
-import printability.cli.main as cli_main
+import printability.app.cli.main as cli_main
 from plugin.prusaslicer import main as plugin_main
-from printability import server_client
-from printability.postprocess import already_processed
-from printability.server import serve, server_status, stop_server
-from printability.server_client import (
+from printability.app import server_client
+from printability.app.server import serve, server_status, stop_server
+from printability.app.server_client import (
     PROTOCOL,
     read_message,
     reply_deadline,
     run_remote,
     send_message,
 )
+from printability.postprocess import already_processed
 
 pytestmark = pytest.mark.skipif(not hasattr(socket, "AF_UNIX"), reason="no Unix-domain sockets")
 
@@ -162,7 +162,7 @@ def test_a_silent_client_holds_up_no_one(private, prusa_short, tmp_path):
 
 
 def test_too_many_connections_are_refused_at_once(private):
-    from printability.server_connections import MAX_CLIENTS as _MAX_CLIENTS
+    from printability.app.server_connections import MAX_CLIENTS as _MAX_CLIENTS
 
     s = Server(private / "s.sock", request_timeout=3.0)
     idle = []

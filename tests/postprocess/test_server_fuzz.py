@@ -17,15 +17,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from printability import __version__
+from printability.app.server import check_request, server_status
+from printability.app.server_client import PROTOCOL, read_message, run_remote
+from printability.app.server_connections import Refusal as _Refusal
 from printability.postprocess import already_processed
-from printability.server import check_request, server_status
-from printability.server_client import PROTOCOL, read_message, run_remote
-from printability.server_connections import Refusal as _Refusal
 
 pytestmark = pytest.mark.skipif(not hasattr(socket, "AF_UNIX"), reason="no Unix-domain sockets")
 
 CLI = str(Path(sys.executable).with_name("printability"))
-LIMIT = 8 << 20  # the server's request limit (printability.server._MAX_REQUEST)
+LIMIT = 8 << 20  # the server's request limit (printability.app.server._MAX_REQUEST)
 TICKET = "ticket-" + "ab" * 16
 DEFAULT_CASES = 400
 SLOW_CASES = 4000

@@ -1,5 +1,5 @@
 """SIGTERM to ``printability serve`` while it runs a request (issue #24): the run's own stop
-handler (:func:`printability.cli.common.stop_signals_raise`) must not swallow it. The server
+handler (:func:`printability.app.cli.common.stop_signals_raise`) must not swallow it. The server
 stops as when idle (socket removed, the client told to run it itself, its ticket gone) and
 the file is left as it was."""
 
@@ -14,8 +14,8 @@ import time
 import pytest
 
 import printability.postprocess
-from printability.server import serve, stop_server
-from printability.server_client import run_remote
+from printability.app.server import serve, stop_server
+from printability.app.server_client import run_remote
 
 pytestmark = pytest.mark.skipif(not hasattr(socket, "AF_UNIX"), reason="no Unix-domain sockets")
 

@@ -1,4 +1,4 @@
-"""Compiled helpers of the split search (printability.motion._search.split_many)
+"""Compiled helpers of the split search (printability.planning._search.split_many)
 against the numpy code they replaced: the same intervals, in the same order, to the bit."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from printability.motion._plan_kernels import points_along, split_intervals
+from printability.planning._plan_kernels import points_along, split_intervals
 
 
 def _intervals_numpy(length, step, ncol):

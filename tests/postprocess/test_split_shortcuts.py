@@ -1,4 +1,4 @@
-"""The split search's shortcuts change no answer (printability.motion._search.split_many).
+"""The split search's shortcuts change no answer (printability.planning._search.split_many).
 
 The fused split tries a move's innermost interval first (where it fits nowhere, no interval
 of the move fits) and starts a whole move's search after the candidates the move was
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import printability.motion.orientation as orientation
+import printability.planning.orientation as orientation
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 
 
@@ -66,9 +66,9 @@ def test_the_kept_middle_of_a_split_move_lays_the_planned_width(nozzle):
     # an L of two 0.45 mm beads: the first move ends in the corner, where the footprint
     # laying 0.45 mm pokes out ahead, so it is split; along its middle only the planned
     # width itself fits (the 10° grid's nearest orientations miss it by hundredths of a mm)
-    from printability.machine import parse_machine
-    from printability.motion.beadunion import bead_union
-    from printability.nozzle import parse_nozzle
+    from printability.model.machine import parse_machine
+    from printability.model.nozzle import parse_nozzle
+    from printability.planning.beadunion import bead_union
 
     w = 0.45
     p0 = np.array([[0.0, 0.0], [10.0, 0.0]])
@@ -89,9 +89,9 @@ def test_what_fits_nowhere_at_twice_the_split_length_is_halved():
     # 0.8 x 0.3 ellipse's split length, 0.1 mm), no piece of either leg fits anywhere, so
     # both were dropped whole; halved, one piece of each fits (and so it does in the
     # reference split, shapely's covers on every candidate)
-    from printability.machine import parse_machine
-    from printability.motion.beadunion import bead_union
-    from printability.nozzle import parse_nozzle
+    from printability.model.machine import parse_machine
+    from printability.model.nozzle import parse_nozzle
+    from printability.planning.beadunion import bead_union
 
     w, leg = 0.45, 0.5
     p0 = np.array([[0.0, 0.0], [leg, 0.0]])

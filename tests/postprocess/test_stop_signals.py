@@ -58,7 +58,7 @@ def fsync(fd):
     os.kill(os.getpid(), sig)
     real_fsync(fd)
 os.fsync = fsync
-from printability.cli.main import run
+from printability.app.cli.main import run
 sys.exit(run(sys.argv[2:]))
 """
 
@@ -168,7 +168,7 @@ def test_a_stop_inside_numba_waits_until_numba_is_left(sig, raised):
     """An exception raised from the handler inside numba's compiler or llvmlite's callbacks
     from LLVM ("Exception ignored on calling ctypes callback function", then a segmentation
     fault): the signal is delivered again once that code is left."""
-    from printability.cli.common import stop_signals_raise
+    from printability.app.cli.common import stop_signals_raise
     from printability.errors import StoppedError
 
     ns = {"__name__": "numba.core.probe", "os": os, "time": time}
@@ -192,7 +192,7 @@ def test_a_stop_inside_numba_waits_until_numba_is_left(sig, raised):
                     reason="signal handlers are set in the main thread only")
 def test_an_ignored_hangup_stays_ignored():
     """Under nohup SIGHUP is ignored: closing the terminal must not stop the run."""
-    from printability.cli.common import stop_signals_raise
+    from printability.app.cli.common import stop_signals_raise
 
     previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
     try:

@@ -1,4 +1,4 @@
-"""Layers side by side (printability.motion.tiles) and the post-processor planning in batches."""
+"""Layers side by side (printability.planning.tiles) and the post-processor planning in batches."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import printability.targets as pp_targets
+import printability.planning.targets as pp_targets
 from printability.errors import InputError
-from printability.motion.tiles import tile_layers
+from printability.planning.tiles import tile_layers
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 
 ELLIPSE = "ellipse:major=0.8,minor=0.3"
@@ -122,8 +122,8 @@ def test_batches_keep_offset_orifices_inside_their_layer(prusa_short, spec, monk
     from pp_helpers import geos_targets
 
     from gcode import parse_gcode
-    from printability.motion.check import check_deposition, extrusion_chords
-    from printability.nozzle import parse_nozzle
+    from printability.model.nozzle import parse_nozzle
+    from printability.planning.check import check_deposition, extrusion_chords
 
     monkeypatch.setattr(pp_targets, "_TILE_GAP", 1e-3)
     data = prusa_short.read_bytes()
@@ -186,8 +186,8 @@ def test_repeated_layers_share_their_twin_target(union_sizes):
     from pp_helpers import geos_targets
 
     from gcode import parse_gcode
-    from printability.motion.check import check_deposition, extrusion_chords
-    from printability.nozzle import parse_nozzle
+    from printability.model.nozzle import parse_nozzle
+    from printability.planning.check import check_deposition, extrusion_chords
 
     data = _square_layers(5, first_differs=True)
     new, res = postprocess_bytes(data, options=PostprocessOptions(nozzle=ELLIPSE, machine="ttr",

@@ -22,11 +22,11 @@ import shapely
 from pp_helpers import geos_targets
 
 from gcode import parse_gcode
-from printability.machine import parse_machine
-from printability.motion import footprints as fp
-from printability.motion.check import check_deposition, extrusion_chords
-from printability.motion.orientation import OrientationOptions, plan_orientations
-from printability.nozzle import parse_nozzle
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
+from printability.planning import footprints as fp
+from printability.planning.check import check_deposition, extrusion_chords
+from printability.planning.orientation import OrientationOptions, plan_orientations
 from printability.postprocess import PostprocessOptions, postprocess_bytes
 
 HERE = Path(__file__).parent

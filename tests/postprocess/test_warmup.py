@@ -6,8 +6,8 @@ import subprocess
 import sys
 
 from gcode import parse_gcode
+from printability.app.warmup import warm_up_gcode
 from printability.postprocess import PostprocessOptions, postprocess_bytes
-from printability.warmup import warm_up_gcode
 
 
 def test_the_warm_up_part_takes_the_plugins_paths():

@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from printability.machine import parse_machine
-from printability.motion._plan_kernels import width_picks
-from printability.motion.orientation import (
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
+from printability.planning._plan_kernels import width_picks
+from printability.planning.orientation import (
     _half_turn_distance,
     preferred_orientations,
     width_table,
 )
-from printability.nozzle import parse_nozzle
 
 
 def _picks_numpy(w, wtab, beta):

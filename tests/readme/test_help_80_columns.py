@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from printability.cli.main import SUBCOMMANDS
+from printability.app.cli.main import SUBCOMMANDS
 
 # A SPEC-looking word of the help: a kind, a colon, then key=value pairs.
 SPEC_WORD = re.compile(r"\b(?:circle|ellipse|rect|polygon|ttr|xy):[^\s\]]*")
@@ -40,7 +40,7 @@ def subcommand_names() -> list[str]:
     """The subcommands, read from the command the entry point builds."""
     import typer.main
 
-    from printability.cli.main import app
+    from printability.app.cli.main import app
 
     names = list(typer.main.get_command(app).commands)
     assert len(names) == len(SUBCOMMANDS)
@@ -74,8 +74,8 @@ def test_subcommand_help_fits_80_columns(name):
     for spec in EXAMPLES.get(name, ()):
         assert spec in text, f"{name} --help: {spec!r} is not printed whole"
     # every SPEC-like word is a SPEC the library reads: a word folded at a comma is not
-    from printability.machine import parse_machine
-    from printability.nozzle import parse_nozzle
+    from printability.model.machine import parse_machine
+    from printability.model.nozzle import parse_nozzle
 
     for word in SPEC_WORD.findall(flat):
         word = word.rstrip(".,;'`)")

@@ -15,7 +15,7 @@ import shapely.affinity
 from _sim_helpers import MiniHost, file_commands
 from shapely.geometry import LineString, Point, box
 
-from printability.layers import Layer, LayerStack
+from printability.model.layers import Layer, LayerStack
 from simulators import Firmware, make_config, write_record
 from simulators.transports import Link
 

@@ -259,7 +259,7 @@ def test_simulate_cli_errors(args, message):
 
 
 def test_simulate_help_runs():
-    from printability.cli.main import main
+    from printability.app.cli.main import main
 
     assert main(["simulate", "--help"]) == 0
 

@@ -15,8 +15,8 @@ from printability.errors import (
     PrintabilityOSError,
     UnknownOptionError,
 )
-from printability.layers import LayerStack
-from printability.nozzle import parse_nozzle
+from printability.model.layers import LayerStack
+from printability.model.nozzle import parse_nozzle
 from printability.options import REGISTRIES, SOURCE_FORMATS, UNITS
 from printability.settings import Settings
 from printability.sources import EXTENSIONS, detect_format, load_layers
@@ -154,7 +154,7 @@ def test_gcode_goes_to_the_gcode_reader(shared_data: Path):
 
 
 def test_svg_polygon_nozzle(tmp_path: Path):
-    # printability.nozzle reads polygon nozzles through load_svg_region.
+    # printability.model.nozzle reads polygon nozzles through load_svg_region.
     svg = tmp_path / "tip.svg"
     svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="2mm" height="1mm" '
                    'viewBox="0 0 2 1"><ellipse cx="1" cy="0.5" rx="0.4" ry="0.15"/></svg>')

@@ -13,8 +13,8 @@ import pytest
 import printability.analysis.tasks as analysis_tasks
 from printability.analysis import RASTER_WORK_BUDGET, analyze, raster_work
 from printability.errors import FileFormatError, ResourceError
-from printability.machine import parse_machine
-from printability.nozzle import parse_nozzle
+from printability.model.machine import parse_machine
+from printability.model.nozzle import parse_nozzle
 from printability.settings import Settings
 from printability.sources.svg import (
     MAX_DEPTH,

@@ -78,7 +78,8 @@ def check_setting(key: str, value: Any, *, base_dir: str | os.PathLike[str] | No
     """The setting ``key`` as stored, or the one-paragraph reason it is refused.
 
     The nozzle and the machine are parsed by printability's own parsers
-    (:func:`printability.nozzle.parse_nozzle`, :func:`printability.machine.parse_machine`),
+    (:func:`printability.model.nozzle.parse_nozzle`,
+    :func:`printability.model.machine.parse_machine`),
     so a SPEC is refused with the message the CLI gives; ``base_dir`` is where a relative
     ``polygon:FILE.svg`` is looked for.
 
@@ -90,11 +91,11 @@ def check_setting(key: str, value: Any, *, base_dir: str | os.PathLike[str] | No
     if key == "nozzle":
         if value is None or (isinstance(value, str) and not value.strip()):
             return ""
-        from printability.nozzle import parse_nozzle
+        from printability.model.nozzle import parse_nozzle
 
         return parse_nozzle(value, base_dir=base_dir).spec
     if key == "machine":
-        from printability.machine import parse_machine
+        from printability.model.machine import parse_machine
 
         # stored as typed (a built-in profile by its name, a TOML file by its name in the
         # plugin's data folder), once it parses
@@ -146,7 +147,7 @@ def flavor_choices() -> list[dict[str, str]]:
 def machine_choices() -> list[str]:
     """Machine SPECs to offer (the built-in kinds and profiles; any other SPEC or a TOML
     file is accepted too)."""
-    from printability.machine import builtin_profiles
+    from printability.model.machine import builtin_profiles
 
     return ["ttr", "ttr:min=-90,max=90", "xy",
             *(name for name in builtin_profiles() if name not in ("ttr", "xy"))]
@@ -156,7 +157,7 @@ def options_for(settings: Mapping[str, Any], *, base_dir: str | os.PathLike[str]
     """The :class:`~printability.postprocess.PostprocessOptions` of the settings: those of
     ``printability postprocess --nozzle N --machine M`` (its defaults otherwise), the flavor
     set on the machine when it is not ``auto``."""
-    from printability.machine import parse_machine
+    from printability.model.machine import parse_machine
     from printability.postprocess import PostprocessOptions
 
     nozzle = check_setting("nozzle", settings.get("nozzle"), base_dir=base_dir) or None
@@ -283,7 +284,7 @@ def write_report(source: str | os.PathLike[str], out_dir: str | os.PathLike[str]
     on the machine, ``layers`` layers spread over the part, one process), in ``out_dir``;
     returns its ``index.html``."""
     from printability.analysis import analyze, select_layers
-    from printability.report import write_report as _write
+    from printability.analysis.report import write_report as _write
     from printability.settings import Settings
     from printability.sources import load_layers
 
@@ -347,7 +348,7 @@ words</li>
 
 def nozzle_facts(spec: str, *, base_dir: str | os.PathLike[str] | None = None) -> dict[str, Any]:
     """What the settings page shows beside the drawing (mm, mm²)."""
-    from printability.nozzle import parse_nozzle
+    from printability.model.nozzle import parse_nozzle
 
     n = parse_nozzle(spec, base_dir=base_dir)
     return {"spec": n.spec, "kind": n.kind, "orifices": len(n.footprints), "area": n.area,
@@ -361,7 +362,7 @@ def nozzle_svg(spec: str, *, base_dir: str | os.PathLike[str] | None = None,
     y up), the rotation axis marked with a cross and a 1 mm scale bar."""
     from shapely.geometry import MultiPolygon
 
-    from printability.nozzle import parse_nozzle
+    from printability.model.nozzle import parse_nozzle
 
     n = parse_nozzle(spec, base_dir=base_dir)
     outline = n.outline(0.0)
@@ -446,7 +447,7 @@ def axis_problem(report: FirmwareReport, letter: str, port: str, source: str) ->
 def rotary_letter(settings: Mapping[str, Any], *, base_dir: str | os.PathLike[str] | None = None
                   ) -> str | None:
     """The rotary axis the rewritten files drive (None: the machine turns no nozzle)."""
-    from printability.machine import parse_machine
+    from printability.model.machine import parse_machine
 
     m = parse_machine(_machine_path(settings.get("machine") or DEFAULTS["machine"], base_dir))
     return m.rotary_letter if m.has_rotary else None
